@@ -1,0 +1,27 @@
+# Two commands set up a fresh machine and run everything: `make demo` and `make test`.
+VENV ?= .venv
+PY := $(VENV)/bin/python
+EXTRAS ?= sim,viz,data,hf,dev
+PYTEST_ARGS ?= -n 2
+
+.PHONY: setup demo test lint bench clean
+
+setup:
+	@EXTRAS=$(EXTRAS) VENV=$(VENV) bash scripts/setup.sh
+
+demo: setup
+	$(VENV)/bin/gazevla experiment --preset quick
+
+test: setup
+	$(VENV)/bin/ruff check src tests benchmarks examples
+	$(PY) -m pytest $(PYTEST_ARGS)
+
+lint: setup
+	$(VENV)/bin/ruff check src tests benchmarks examples
+	$(VENV)/bin/ruff format --check src tests benchmarks examples
+
+bench: setup
+	$(PY) benchmarks/run_all.py
+
+clean:
+	rm -rf $(VENV) .pytest_cache build *.egg-info src/*.egg-info
