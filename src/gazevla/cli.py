@@ -24,8 +24,15 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+def _installed(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except ModuleNotFoundError:  # a parent package is absent
+        return False
+
+
 def available() -> dict[str, tuple[str, str]]:
-    return {name: v for name, v in SUBCOMMANDS.items() if importlib.util.find_spec(v[0]) is not None}
+    return {name: v for name, v in SUBCOMMANDS.items() if _installed(v[0])}
 
 
 def _usage() -> str:
