@@ -191,9 +191,8 @@ class EpisodeStore:
             raise ValueError(f"priors for episode {index} must be (T={T}, h, w) + ({T},), got {heatmaps.shape}, {valid.shape}")
         if not np.isfinite(heatmaps).all() or (heatmaps < 0).any():
             raise ValueError(f"priors for episode {index} contain NaN, inf or negative values")
-        with atomic_path(self.prior_dir(name) / f"ep_{index:06d}.npz") as tmp:
-            with open(tmp, "wb") as f:
-                np.savez(f, heatmaps=heatmaps.astype(np.float16), valid=valid.astype(bool))
+        with atomic_path(self.prior_dir(name) / f"ep_{index:06d}.npz") as tmp, open(tmp, "wb") as f:
+            np.savez(f, heatmaps=heatmaps.astype(np.float16), valid=valid.astype(bool))
 
     def read_prior(self, name: str, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Returns heatmaps float32 (T, h, w) and valid bool (T,)."""

@@ -1,0 +1,1 @@
+"""Gaze: heatmaps from points, temporal aggregation, gaze sources and the prior pipeline."""
