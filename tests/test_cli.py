@@ -1,0 +1,27 @@
+import subprocess
+import sys
+
+from gazevla.cli import main
+from gazevla.config import split_preset
+
+
+def test_help_lists_available_commands(capsys):
+    assert main(["--help"]) == 0
+    out = capsys.readouterr().out
+    assert "usage: gazevla" in out
+
+
+def test_unknown_command_is_an_error(capsys):
+    assert main(["frobnicate"]) == 2
+    assert "unknown command 'frobnicate'" in capsys.readouterr().err
+
+
+def test_split_preset():
+    assert split_preset(["--preset", "quick", "--a.b=1"], "smoke") == ("quick", ["--a.b=1"])
+    assert split_preset(["--preset=paper"], "smoke") == ("paper", [])
+    assert split_preset([], "smoke") == ("smoke", [])
+
+
+def test_console_script_runs():
+    r = subprocess.run([sys.executable, "-m", "gazevla.cli", "--help"], capture_output=True, text=True, check=True)
+    assert "commands:" in r.stdout
