@@ -13,7 +13,12 @@ from torch import Tensor
 
 
 def as_tensor(x: Tensor | np.ndarray, dtype: torch.dtype | None = None) -> Tensor:
-    return x.to(dtype) if isinstance(x, Tensor) and dtype is not None else torch.as_tensor(x, dtype=dtype)
+    """A tensor view of x (copied when x is a read-only array, e.g. a memory-mapped episode)."""
+    if isinstance(x, Tensor):
+        return x if dtype is None else x.to(dtype)
+    if isinstance(x, np.ndarray) and not x.flags.writeable:
+        x = np.array(x)
+    return torch.as_tensor(x, dtype=dtype)
 
 
 def heatmaps_from_points(

@@ -1,0 +1,96 @@
+import numpy as np
+import pytest
+
+from gazevla.data.store import Episode, EpisodeStore
+from gazevla.gaze.priors import PriorsConfig, make_priors, parse_params
+from gazevla.gaze.sources import available_gaze_sources, make_gaze_source
+
+
+def square_episode(T=6, hw=(32, 32), pos=(0.25, 0.75)):
+    """Grey frames with a bright square at (u, v) = pos; recorded gaze on the square."""
+    frames = np.full((T, *hw, 3), 90, np.uint8)
+    cy, cx = int(pos[1] * hw[0]), int(pos[0] * hw[1])
+    frames[:, cy - 3 : cy + 3, cx - 3 : cx + 3] = 255
+    gaze = np.tile(np.array(pos, np.float32), (T, 1))
+    gaze[1] = np.nan
+    return Episode(
+        task="t",
+        instruction="look at the square",
+        frames={"cam": frames},
+        state=np.zeros((T, 2), np.float32),
+        action=np.zeros((T, 2), np.float32),
+        extras={"gaze_uv.cam": gaze},
+    )
+
+
+@pytest.fixture
+def store(tmp_path):
+    s = EpisodeStore(tmp_path / "store", create=True)
+    for k in range(3):
+        s.write(square_episode(T=5 + k))
+    return s
+
+
+def test_registry_lists_builtins_and_rejects_unknown():
+    assert {"uniform", "saliency", "perturbed", "recorded", "visuomotor", "glc"} <= set(available_gaze_sources())
+    with pytest.raises(KeyError, match="unknown gaze source 'nope'"):
+        make_gaze_source("nope")
+    with pytest.raises(TypeError, match="bad parameters for gaze source 'uniform'"):
+        make_gaze_source("uniform", sigma=1)
+
+
+def test_saliency_peaks_on_the_salient_square():
+    heat, valid = make_gaze_source("saliency")(square_episode(), "cam", (16, 16))
+    assert valid.all() and np.allclose(heat.sum((1, 2)), 1, atol=1e-5)
+    i, j = np.unravel_index(heat[0].argmax(), heat[0].shape)
+    assert abs(i - 12) <= 2 and abs(j - 4) <= 2
+
+
+def test_recorded_gaze_marks_lost_frames_invalid():
+    heat, valid = make_gaze_source("recorded")(square_episode(), "cam", (16, 16))
+    assert valid.tolist() == [True, False, True, True, True, True]
+    assert np.unravel_index(heat[0].argmax(), heat[0].shape) == (11, 3)
+    with pytest.raises(KeyError, match="no recorded gaze 'gaze_uv.wrist'"):
+        make_gaze_source("recorded")(square_episode(), "wrist", (16, 16))
+
+
+def test_priors_pipeline_resumes_and_refuses_changed_settings(store):
+    cfg = PriorsConfig(store=store.root, source="recorded", camera="cam", size=(16, 16))
+    assert make_priors(cfg, progress=False) == "recorded"
+    info = store.prior_info("recorded")
+    assert info["source"]["name"] == "recorded" and info["camera"] == "cam"
+    heat, valid = store.read_prior("recorded", 0)
+    assert valid.all()  # the lost frame is filled by its neighbours (window 2+2)
+    mtime = (store.prior_dir("recorded") / "ep_000000.npz").stat().st_mtime_ns
+    make_priors(cfg, progress=False)  # resume: nothing recomputed
+    assert (store.prior_dir("recorded") / "ep_000000.npz").stat().st_mtime_ns == mtime
+    with pytest.raises(ValueError, match="other settings"):
+        make_priors(PriorsConfig(store=store.root, source="recorded", camera="cam", size=(8, 8)), progress=False)
+
+
+def test_sharded_priors_cover_every_episode_once(store):
+    cfg = PriorsConfig(store=store.root, source="uniform", camera="cam", size=(8, 8))
+    make_priors(cfg, rank=1, world=2, progress=False)
+    assert [store.has_prior("uniform", i) for i in store.indices()] == [False, True, False]
+    make_priors(cfg, rank=0, world=2, progress=False)
+    assert all(store.has_prior("uniform", i) for i in store.indices())
+
+
+@pytest.mark.parametrize("mode", ["blobs", "shuffle", "other_episode"])
+def test_perturbed_controls(store, mode):
+    make_priors(PriorsConfig(store=store.root, source="recorded", camera="cam", size=(16, 16)), progress=False)
+    params = (f"mode={mode}", "base=recorded", "block=4")
+    make_priors(PriorsConfig(store=store.root, source="perturbed", source_params=params, name=f"p_{mode}", camera="cam", size=(16, 16)), progress=False)
+    base, _ = store.read_prior("recorded", 0)
+    pert, valid = store.read_prior(f"p_{mode}", 0)
+    assert valid.any() and np.allclose(pert[valid].sum((1, 2)), 1, atol=1e-5)
+    assert pert.shape == base.shape
+    if mode == "shuffle":  # same values, other places
+        np.testing.assert_allclose(np.sort(pert[0].ravel()), np.sort(base[0].ravel()), atol=1e-6)
+        assert not np.allclose(pert[0], base[0])
+
+
+def test_parse_params():
+    assert parse_params(["a=1", "b=x", "c=[1,2]"]) == {"a": 1, "b": "x", "c": [1, 2]}
+    with pytest.raises(ValueError, match="key=value"):
+        parse_params(["oops"])
