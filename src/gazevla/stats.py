@@ -1,0 +1,63 @@
+"""Statistics for honest comparisons: Wilson intervals, exact paired and unpaired tests, convergence.
+
+Evaluation arms share their episode seeds, so two policies' outcomes on the same seeds form pairs; the
+paired exact test (McNemar's, a binomial test on the discordant pairs) uses that. Fisher's exact test
+compares two success counts without pairing.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+
+def wilson(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """Wilson score interval for a binomial proportion (95% by default); (0, 1) when n == 0."""
+    if n < 0 or not 0 <= successes <= n:
+        raise ValueError(f"need 0 <= successes <= n, got {successes}/{n}")
+    if n == 0:
+        return 0.0, 1.0
+    p = successes / n
+    den = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def binom_two_sided(k: int, n: int, p: float = 0.5) -> float:
+    """Exact two-sided binomial test p-value (sum of outcomes no more likely than k)."""
+    if n == 0:
+        return 1.0
+    pmf = [math.comb(n, i) * p**i * (1 - p) ** (n - i) for i in range(n + 1)]
+    return min(1.0, sum(q for q in pmf if q <= pmf[k] * (1 + 1e-9)))
+
+
+def mcnemar_exact(a: Sequence[bool], b: Sequence[bool]) -> dict[str, float]:
+    """Paired exact test of two arms' outcomes on the same seeds.
+
+    Returns {"a_only": episodes only a solved, "b_only": only b solved, "p_value": two-sided}."""
+    if len(a) != len(b):
+        raise ValueError(f"paired outcomes must have equal length, got {len(a)} and {len(b)}")
+    a_only = sum(1 for x, y in zip(a, b) if x and not y)
+    b_only = sum(1 for x, y in zip(a, b) if y and not x)
+    return {"a_only": a_only, "b_only": b_only, "p_value": binom_two_sided(a_only, a_only + b_only)}
+
+
+def fisher_exact(k1: int, n1: int, k2: int, n2: int) -> float:
+    """Two-sided Fisher exact test p-value for successes k1/n1 vs k2/n2."""
+    total_k, total = k1 + k2, n1 + n2
+
+    def prob(x: int) -> float:
+        return math.comb(n1, x) * math.comb(n2, total_k - x) / math.comb(total, total_k)
+
+    lo, hi = max(0, total_k - n2), min(n1, total_k)
+    p_obs = prob(k1)
+    return min(1.0, sum(prob(x) for x in range(lo, hi + 1) if prob(x) <= p_obs * (1 + 1e-9)))
+
+
+def steps_to_threshold(steps: Sequence[int], values: Sequence[float], threshold: float) -> int | None:
+    """First step at which a success-versus-steps curve reaches `threshold`; None if it never does."""
+    for s, v in zip(steps, values):
+        if v >= threshold:
+            return int(s)
+    return None
