@@ -11,7 +11,11 @@ Protocol (official GLC evaluation):
 4. the reported F1 / recall / precision are those at the threshold with the best F1;
 5. AUC: per frame, a one-hot at the (truncated) centre of mass of the normalised prediction is blurred
    with a Gaussian (sigma 3.2 px on a 64-px map, scaled with the map), min-max normalised, and
-   `AUC = 1 - fraction of pixels scoring higher than the pixel of the true gaze point`.
+   `AUC = 1 - fraction of pixels scoring higher than the pixel of the true gaze point`. The blur is
+   truncated at 4 sigma, so every miss farther than that scores the same (~0.95 on 64x64 maps).
+
+Under this protocol even a perfect prediction (the target map itself) has precision ~0.7: the
+binarised target (> 0.001) is narrower than the region above 2% of the normalised peak.
 
 Maps can be `(N, 1, T, h, w)`, `(N, T, h, w)`, `(T, h, w)` or `(h, w)` tensors or arrays; masks and
 gaze points follow the same leading dims (`(N, T)` and `(N, T, 2)`, points normalised `(u right, v down)`).
