@@ -1,0 +1,149 @@
+"""`gazevla import`: demonstrations from other formats into an episode store, and priors back out.
+
+    gazevla import lerobot --root PATH --out STORE [--gaze-camera front] [--cameras front wrist]
+    gazevla import hdf5 --file PATH [PATH ...] --out STORE [--rotate180 auto|none|all|cam1,cam2]
+    gazevla import export-priors --store STORE --prior NAME --out DIR
+
+`lerobot` reads a LeRobot v3.0 data set (gazevla.data.lerobot_v3), `hdf5` a LIBERO / robomimic HDF5 file
+(gazevla.data.hdf5), `export-priors` writes a store's priors as a LeRobot sidecar keyed by episode_index and
+frame_index (DIR/priors.parquet + DIR/priors.json; see `export_priors_lerobot`). Run a subcommand with
+--help for its options.
+
+Imports stream one episode at a time and resume: the store index of an episode is fixed by its source
+(LeRobot episode_index; HDF5 demo number), episodes already in the store are skipped after checking that they
+came from the same source with the same settings, and every episode is written atomically, so an error or a
+kill mid-episode leaves no partial episode behind.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
+
+from tqdm import tqdm
+
+from gazevla.data.store import Episode, EpisodeStore
+
+log = logging.getLogger(__name__)
+
+
+class DataImportError(ValueError):
+    """A source file is corrupt, inconsistent or not what the importer was asked to read.
+
+    The message names the file and the episode."""
+
+
+@dataclass
+class SourceEpisode:
+    """One episode to import: its store index, who it is (compared on resume), and how to load it."""
+
+    index: int
+    identity: dict[str, Any]  # JSON-able; stored as meta["source"]
+    load: Callable[[], Episode]
+    length: int | None = None  # frames, if known without loading (for the progress bar)
+
+
+def _same_source(stored: dict[str, Any], identity: dict[str, Any]) -> bool:
+    return all(stored.get(k) == v for k, v in identity.items() if k not in ("path", "root"))
+
+
+def write_episodes(
+    store: EpisodeStore,
+    episodes: Iterable[SourceEpisode],
+    total: int | None = None,
+    desc: str = "import",
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Load and write each episode not yet in the store; returns counts and throughput.
+
+    An episode already in the store is skipped when its recorded meta["source"] matches the identity (same
+    source format, episode, data set fingerprint and import settings; the path may differ), and refused
+    otherwise, so a resumed import never mixes two data sets or two settings in one store."""
+    imported = skipped = frames = 0
+    t0 = time.perf_counter()
+    bar = tqdm(total=total, desc=desc, unit="ep", disable=not progress, file=sys.stderr)
+    try:
+        for item in episodes:
+            if item.index in store:
+                stored = store.meta(item.index).get("source", {})
+                if not _same_source(stored, item.identity):
+                    raise DataImportError(
+                        f"store {store.root} already holds episode {item.index} from another source or with other "
+                        f"import settings:\n  stored:    {stored}\n  importing: {item.identity}\n"
+                        "import into a fresh store (or delete that episode folder to re-import it)"
+                    )
+                skipped += 1
+            else:
+                ep = item.load()
+                ep.meta["source"] = dict(item.identity)
+                try:
+                    store.write(ep, item.index)
+                except ValueError as e:
+                    raise DataImportError(
+                        f"{item.identity.get('path', '?')}: episode {item.identity.get('episode')}: {e}"
+                    ) from e
+                imported += 1
+                frames += ep.length
+            bar.update(1)
+            elapsed = time.perf_counter() - t0
+            bar.set_postfix(
+                frames=frames, fps=f"{frames / max(elapsed, 1e-9):.0f}", skipped=skipped, refresh=False
+            )
+    finally:
+        bar.close()
+    seconds = time.perf_counter() - t0
+    return {
+        "imported": imported,
+        "skipped": skipped,
+        "frames": frames,
+        "seconds": seconds,
+        "frames_per_s": frames / max(seconds, 1e-9),
+    }
+
+
+_SUBCOMMANDS = {
+    "lerobot": (
+        "gazevla.data.lerobot_v3",
+        "import a LeRobot v3.0 data set (parquet + MP4) into an episode store",
+    ),
+    "hdf5": ("gazevla.data.hdf5", "import LIBERO / robomimic HDF5 demonstrations into an episode store"),
+    "export-priors": (
+        "gazevla.data.lerobot_v3",
+        "export a store's gaze priors as a LeRobot sidecar (parquet + JSON)",
+    ),
+}
+
+
+def _usage() -> str:
+    lines = ["usage: gazevla import <lerobot|hdf5|export-priors> [options]", ""]
+    lines += [f"  {name:<14} {doc}" for name, (_, doc) in _SUBCOMMANDS.items()]
+    return "\n".join(lines + ["", (__doc__ or "").split("\n\n")[1]])
+
+
+def main(argv: list[str] | None = None) -> int:
+    import importlib
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(_usage())
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name not in _SUBCOMMANDS:
+        print(f"gazevla import: unknown source {name!r}\n\n{_usage()}", file=sys.stderr)
+        return 2
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    module = importlib.import_module(_SUBCOMMANDS[name][0])
+    entry = module.export_main if name == "export-priors" else module.import_main
+    try:
+        return int(entry(rest) or 0)
+    except (DataImportError, FileNotFoundError) as e:
+        print(f"gazevla import {name}: error: {e}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
