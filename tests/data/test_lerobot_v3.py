@@ -126,7 +126,7 @@ def test_gaze_camera_option_and_camera_subset(tmp_path):
 
 def test_rotate180_turns_frames_and_gaze(imported, tmp_path):
     store, _ = imported
-    import_lerobot(cfg(FIXTURE, tmp_path / "r", rotate180=("front",), episodes=(0,)))
+    import_lerobot(cfg(FIXTURE, tmp_path / "r", rotate180="front", episodes=(0,)))
     rot = EpisodeStore(tmp_path / "r").read(0)
     ref = store.read(0)
     np.testing.assert_array_equal(rot.frames["front"], ref.frames["front"][:, ::-1, ::-1])
@@ -293,7 +293,7 @@ def test_export_priors_round_trip(tmp_path):
 def test_export_undoes_import_rotation_and_episode_map(tmp_path):
     plain, rot = tmp_path / "plain", tmp_path / "rot"
     import_lerobot(cfg(FIXTURE, plain, episodes=(0,)))
-    import_lerobot(cfg(FIXTURE, rot, episodes=(0,), rotate180=("front",)))
+    import_lerobot(cfg(FIXTURE, rot, episodes=(0,), rotate180="front"))
     for s in (plain, rot):
         _recorded_priors(s)
     a = read_priors_lerobot(export_priors_lerobot(plain, "recorded", tmp_path / "a"))

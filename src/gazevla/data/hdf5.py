@@ -51,7 +51,7 @@ from typing import Any
 
 import numpy as np
 
-from gazevla.data.importers import DataImportError, SourceEpisode, write_episodes
+from gazevla.data.importers import DataImportError, SourceEpisode, rotated_cameras, write_episodes
 from gazevla.data.store import Episode, EpisodeStore
 
 log = logging.getLogger(__name__)
@@ -203,22 +203,6 @@ class Hdf5Demos:
                 return _attr_str(attrs["language_instruction"]).strip()
         return instruction_from_filename(self.path)
 
-    def rotated_cameras(self, spec: str, cameras: list[str]) -> list[str]:
-        spec = spec.strip()
-        if spec == "auto":
-            return list(cameras) if self.is_libero else []
-        if spec in ("none", ""):
-            return []
-        if spec == "all":
-            return list(cameras)
-        names = [c.strip() for c in spec.split(",") if c.strip()]
-        unknown = [c for c in names if c not in cameras]
-        if unknown:
-            raise DataImportError(
-                f"rotate180 names camera(s) {unknown} that are not imported from {self.path} ({cameras})"
-            )
-        return names
-
     def read(
         self,
         n: int,
@@ -348,7 +332,9 @@ def import_hdf5(cfg: Hdf5ImportConfig) -> dict[str, Any]:
                     f"{demos.path}, {demos.demos[first]}: no uint8 (T, H, W, 3) camera observations; name them with --cameras"
                 )
             state_keys = tuple(cfg.state_keys) or default_state_keys(demos, first)
-            rotate = demos.rotated_cameras(cfg.rotate180, cams)
+            rotate = rotated_cameras(
+                cfg.rotate180, cams, auto=cams if demos.is_libero else [], where=f" from {demos.path}"
+            )
             if cfg.gaze_camera is not None and cfg.gaze_key is None:
                 raise DataImportError("--gaze-camera needs --gaze-key (the obs key holding the gaze points)")
             task = cfg.task or re.sub(r"_demo$", "", demos.path.stem)

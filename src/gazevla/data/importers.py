@@ -47,6 +47,26 @@ class SourceEpisode:
     length: int | None = None  # frames, if known without loading (for the progress bar)
 
 
+def rotated_cameras(
+    spec: str, cameras: list[str], auto: list[str] | None = None, where: str = ""
+) -> list[str]:
+    """Cameras to turn by 180 degrees from a `rotate180` option: none | all | auto | comma-separated names.
+
+    `auto` means the importer's own default (`auto`; none where the importer has no default)."""
+    spec = spec.strip()
+    if spec == "auto":
+        return list(auto or [])
+    if spec in ("none", ""):
+        return []
+    if spec == "all":
+        return list(cameras)
+    names = [c.strip() for c in spec.split(",") if c.strip()]
+    unknown = [c for c in names if c not in cameras]
+    if unknown:
+        raise DataImportError(f"rotate180 names camera(s) {unknown} that are not imported{where} ({cameras})")
+    return names
+
+
 def _same_source(stored: dict[str, Any], identity: dict[str, Any]) -> bool:
     return all(stored.get(k) == v for k, v in identity.items() if k not in ("path", "root"))
 

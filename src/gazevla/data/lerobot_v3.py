@@ -25,9 +25,10 @@ import resumes where it stopped. What lands in the store:
     meta["fps"] the frame rate.
 
 Orientation: frames are stored as the data set holds them (LeRobot data sets are upright; LeRobot's LIBERO
-conversions were already rotated), and gaze stays in that frame. `rotate180` names cameras to turn by 180
-degrees at import (frames and that camera's gaze, u -> 1-u, v -> 1-v); it is recorded in
-meta["orientation_applied"] and undone by the priors export, so the sidecar is always in the data set's frame.
+conversions were already rotated), and gaze stays in that frame. `rotate180` (none | all | comma-separated
+cameras) turns cameras by 180 degrees at import (frames and that camera's gaze, u -> 1-u, v -> 1-v); it is
+recorded in meta["orientation_applied"] and undone by the priors export, so the sidecar is always in the
+data set's frame.
 
 Export (`gazevla import export-priors --store STORE --prior NAME --out DIR`): `export_priors_lerobot` writes
 DIR/priors.parquet (columns episode_index, frame_index, index int64; prior fixed_size_list<float32>[h*w],
@@ -49,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from gazevla.data.importers import DataImportError, SourceEpisode, write_episodes
+from gazevla.data.importers import DataImportError, SourceEpisode, rotated_cameras, write_episodes
 from gazevla.data.store import Episode, EpisodeStore
 from gazevla.data.video import DecodeError, VideoFile, decode_image
 from gazevla.utils.io import atomic_path, atomic_write_json
@@ -97,8 +98,9 @@ class LeRobotImportConfig:
     action_key: str = "action"
     episodes: tuple[int, ...] = ()
     """episode_index values to import; default: all"""
-    rotate180: tuple[str, ...] = ()
-    """cameras to rotate by 180 degrees at import (frames and gaze); recorded in meta, undone on export"""
+    rotate180: str = "none"
+    """cameras to turn by 180 degrees at import (frames and gaze): none | all | comma-separated names;
+    recorded in meta["orientation_applied"] and undone on export"""
     tolerance_s: float = 1e-4
     """max difference between a frame's video time and from_timestamp + timestamp"""
     progress: bool = True
@@ -151,7 +153,7 @@ class LeRobotV3Dataset:
                 self.video_keys.append(key)
         self.tasks = self._read_tasks()
         self.episodes = self._read_episodes()
-        self._table_file: Path | None = None
+        self._table_file: tuple[Path, frozenset[str]] | None = None
         self._table: Any = None
         self._rows: dict[int, np.ndarray] = {}
         self._videos: dict[str, VideoFile] = {}
@@ -219,12 +221,22 @@ class LeRobotV3Dataset:
             ) from e
         return self.root / rel
 
-    def _load_table(self, path: Path, episode: int) -> None:
-        if self._table_file == path:
+    def _load_table(self, path: Path, episode: int, skip: frozenset[str] = frozenset()) -> None:
+        """Load one data file (without the image columns of cameras not imported) and index its episodes."""
+        if self._table_file == (path, skip):
             return
         self._table = None
         self._table_file = None
-        table = self._read_parquet(path, f"episode {episode} data")
+        _, pq = _pa()
+        columns = None
+        if skip and path.exists():
+            try:
+                columns = [c for c in pq.read_schema(path).names if c not in skip]
+            except Exception as e:
+                raise DataImportError(
+                    f"episode {episode} data: {path} could not be read (corrupt or truncated parquet?): {e}"
+                ) from e
+        table = self._read_parquet(path, f"episode {episode} data", columns)
         if "episode_index" not in table.column_names:
             raise DataImportError(f"episode {episode} data: {path} has no episode_index column")
         ep_col = table.column("episode_index").to_numpy()
@@ -232,7 +244,7 @@ class LeRobotV3Dataset:
         uniq, starts = np.unique(ep_col[order], return_index=True)
         ends = [*starts[1:], len(order)]
         self._rows = {int(u): order[s:e] for u, s, e in zip(uniq, starts, ends)}
-        self._table, self._table_file = table, path
+        self._table, self._table_file = table, (path, skip)
 
     def _video(self, key: str, path: Path, episode: int) -> VideoFile:
         vf = self._videos.get(key)
@@ -278,7 +290,10 @@ class LeRobotV3Dataset:
             if c not in self.cameras:
                 raise DataImportError(f"{self.root}: no camera {c!r} (it has {sorted(self.cameras)})")
         path = self._data_file(ep)
-        self._load_table(path, index)
+        skip = frozenset(
+            k for c, k in self.cameras.items() if c not in cams and self.features[k]["dtype"] == "image"
+        )
+        self._load_table(path, index, skip)
         table = self._table
         rows = self._rows.get(index)
         where = f"{path}, episode {index}"
@@ -504,9 +519,7 @@ def plan_lerobot(cfg: LeRobotImportConfig, dataset: LeRobotV3Dataset) -> list[So
     missing = [c for c in cams if c not in dataset.cameras]
     if missing:
         raise DataImportError(f"{dataset.root}: no camera(s) {missing}; it has {sorted(dataset.cameras)}")
-    for c in cfg.rotate180:
-        if c not in cams:
-            raise DataImportError(f"rotate180 names camera {c!r}, which is not imported ({cams})")
+    rotate = rotated_cameras(cfg.rotate180, cams, where=f" from {dataset.root}")
     has_gaze = bool(cfg.gaze_key) and cfg.gaze_key in dataset.features
     gaze_cam = (cfg.gaze_camera or dataset.default_gaze_camera(cams)) if has_gaze else None
     if has_gaze and gaze_cam not in cams:
@@ -527,7 +540,7 @@ def plan_lerobot(cfg: LeRobotImportConfig, dataset: LeRobotV3Dataset) -> list[So
         "gaze_key": cfg.gaze_key if has_gaze else None,
         "state_key": cfg.state_key,
         "action_key": cfg.action_key,
-        "rotate180": sorted(cfg.rotate180),
+        "rotate180": rotate,
     }
     fp = dataset.fingerprint()
     items = []
@@ -550,7 +563,7 @@ def plan_lerobot(cfg: LeRobotImportConfig, dataset: LeRobotV3Dataset) -> list[So
                 gaze_cam,
                 cfg.state_key,
                 cfg.action_key,
-                tuple(cfg.rotate180),
+                tuple(rotate),
             )
 
         items.append(SourceEpisode(index=e, identity=identity, load=load, length=dataset.episodes[e].length))
