@@ -1,0 +1,285 @@
+"""Closed-loop evaluation in simulation: paired seeds, perturbation conditions, Wilson intervals, videos.
+
+    gazevla eval --checkpoints baseline=runs/a/final gaze=runs/b/final --tasks reach-v3 --episodes 20 \
+        --conditions clean dim:0.7 gaussian_noise:0.5
+
+Every checkpoint ("arm") is rolled out on the same list of setup seeds per task and under every condition
+(a perturbation spec, `gazevla.envs.perturbations`), so arms form pairs seed by seed. Evaluation seeds start at
+`seed_start` (default 1000, i.e. Meta-World benchmark seed 20's setups), away from the setups demonstrations
+are collected on (seeds from 0). One worker process per core; each loads each checkpoint once.
+Writes `eval_info.json` (config, seeds actually used, every episode's outcome, summaries) and GIF videos
+of the first `videos` episodes per arm, task and condition with the policy's attention overlaid.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+from collections import defaultdict
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from gazevla.config import to_dict
+from gazevla.stats import mcnemar_exact, wilson
+from gazevla.utils.io import atomic_write_json
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    checkpoints: tuple[str, ...] = ()
+    """policies to evaluate: NAME=DIR or DIR (named after the folder)"""
+    tasks: tuple[str, ...] = ("reach-v3",)
+    episodes: int = 10
+    """episodes per task and condition (setup seeds seed_start .. seed_start + episodes - 1)"""
+    seed_start: int = 1000
+    conditions: tuple[str, ...] = ("clean",)
+    """perturbation specs, e.g. clean, dim:0.7, tint:1, gaussian_noise:0.5, salt_pepper:0.5, dim:0.5+gaussian_noise:0.3"""
+    max_steps: int = 150
+    workers: int = 2
+    """worker processes (one per core); 1 runs in this process"""
+    videos: int = 1
+    """episodes per (arm, task, condition) saved as GIFs with the attention overlay (0: none)"""
+    out: Path = Path("runs/eval")
+    gl_backend: str | None = None
+    """MuJoCo OpenGL backend (egl | osmesa | glfw); None: respect MUJOCO_GL, else egl, else osmesa"""
+
+
+def parse_checkpoints(items: Sequence[str]) -> dict[str, Path]:
+    arms: dict[str, Path] = {}
+    for item in items:
+        name, _, path = item.rpartition("=") if "=" in item else (Path(item).name, "", item)
+        if name in arms:
+            raise ValueError(f"two checkpoints named {name!r}; name them NAME=DIR")
+        if not (Path(path) / "config.json").exists():
+            raise FileNotFoundError(f"checkpoint {path!r} ({name}) is not a saved policy folder (no config.json)")
+        arms[name] = Path(path)
+    if not arms:
+        raise ValueError("no checkpoints to evaluate: pass --checkpoints NAME=DIR ...")
+    return arms
+
+
+@dataclass(frozen=True)
+class Job:
+    arm: str
+    checkpoint: str
+    task: str
+    condition: str
+    seed: int
+    video: str | None  # GIF path, or None
+
+
+class Worker:
+    """Per-process state: loaded policies and environments, reused across jobs."""
+
+    def __init__(self, max_steps: int, gl_backend: str | None):
+        import torch
+
+        torch.set_num_threads(1)
+        self.max_steps, self.gl_backend = max_steps, gl_backend
+        self.policies: dict[str, Any] = {}
+        self.envs: dict[tuple[str, str, tuple[str, ...], tuple[int, int]], Any] = {}
+
+    def policy(self, checkpoint: str) -> Any:
+        if checkpoint not in self.policies:
+            from gazevla.policies import load_policy
+
+            self.policies[checkpoint] = load_policy(checkpoint)
+        return self.policies[checkpoint]
+
+    def env(self, task: str, condition: str, cameras: tuple[str, ...], size: tuple[int, int]) -> Any:
+        key = (task, condition, cameras, size)
+        if key not in self.envs:
+            from gazevla.envs import MetaWorldEnv, parse_perturbation
+
+            self.envs[key] = MetaWorldEnv(
+                task, cameras=cameras, image_size=size, max_steps=self.max_steps,
+                perturbation=parse_perturbation("" if condition == "clean" else condition), gl_backend=self.gl_backend,
+            )
+        return self.envs[key]
+
+    def run(self, job: Job) -> dict[str, Any]:
+        policy = self.policy(job.checkpoint)
+        cfg = policy.config
+        cams = tuple(cfg.cameras)
+        size = tuple(cfg.camera_hw[0]) if cfg.camera_hw else tuple(cfg.image_hw)
+        env = self.env(job.task, job.condition, cams, size)
+        obs, info = env.reset(seed=job.seed)
+        policy.reset()
+        frames: list[np.ndarray] = []
+        probe_spec = policy.gaze_probe_spec(cams[0]) if job.video else None
+        attn = None
+        success, steps = False, 0
+        for steps in range(1, self.max_steps + 1):  # noqa: B007 (steps is the episode length)
+            if probe_spec is not None:
+                from gazevla.attention import AttentionProbe
+
+                with AttentionProbe(policy, probe_spec, adapter="tap") as probe:
+                    action = policy.select_action(obs, obs["instruction"])
+                if probe.layers:
+                    attn = probe.distribution()[0].numpy()
+                frames.append(self._frame(policy, cams[0], obs["images"][cams[0]], attn))
+            else:
+                action = policy.select_action(obs, obs["instruction"])
+            obs, _, terminated, truncated, info = env.step(action)
+            success = success or bool(info["success"])
+            if terminated or truncated:
+                break
+        out = {"arm": job.arm, "task": job.task, "condition": job.condition, "seed": job.seed, "success": success, "length": steps}
+        if job.video and frames:
+            from gazevla.viz.overlay import write_gif
+
+            write_gif(job.video, frames)
+            out["video"] = job.video
+        return out
+
+    @staticmethod
+    def _frame(policy: Any, camera: str, image: np.ndarray, attn: np.ndarray | None) -> np.ndarray:
+        from gazevla.patches import grid_to_image
+        from gazevla.viz.overlay import overlay
+
+        if attn is None:
+            return np.asarray(image)
+        heat = grid_to_image(attn, policy.geometry(camera), image.shape[:2]).numpy()
+        return np.concatenate([np.asarray(image), overlay(np.asarray(image), heat)], axis=1)
+
+
+_WORKER: Worker | None = None
+
+
+def _init_worker(max_steps: int, gl_backend: str | None) -> None:
+    global _WORKER
+    _WORKER = Worker(max_steps, gl_backend)
+
+
+def _run_job(job: Job) -> dict[str, Any]:
+    assert _WORKER is not None, "worker not initialised"
+    return _WORKER.run(job)
+
+
+def make_jobs(cfg: EvalConfig, arms: dict[str, Path]) -> list[Job]:
+    jobs = []
+    for arm, ckpt in arms.items():
+        for task in cfg.tasks:
+            for condition in cfg.conditions:
+                for i in range(cfg.episodes):
+                    video = None
+                    if i < cfg.videos:
+                        tag = condition.replace(":", "").replace("+", "_")
+                        video = str(Path(cfg.out) / "videos" / f"{arm}__{task}__{tag}__seed{cfg.seed_start + i}.gif")
+                    jobs.append(Job(arm, str(ckpt), task, condition, cfg.seed_start + i, video))
+    return jobs
+
+
+def run_jobs(jobs: list[Job], workers: int, max_steps: int, gl_backend: str | None, progress: bool = True) -> list[dict[str, Any]]:
+    """Run rollouts in `workers` processes (spawned: MuJoCo and torch threads are not fork-safe)."""
+    if workers <= 1:
+        _init_worker(max_steps, gl_backend)
+        return [_run_job(j) for j in tqdm(jobs, desc="eval", disable=not progress)]
+    # Longest jobs first would need lengths we do not know; interleave arms so workers share load evenly.
+    with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_init_worker, initargs=(max_steps, gl_backend)) as ex:
+        return list(tqdm(ex.map(_run_job, jobs, chunksize=1), total=len(jobs), desc="eval", disable=not progress))
+
+
+def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per arm, condition and task: successes, n, rate, Wilson 95% interval, mean length; pooled over tasks;
+    each condition's drop from clean; paired exact tests between arms on the shared seeds."""
+    by: dict[tuple[str, str, str], list[dict[str, Any]]] = defaultdict(list)
+    for r in records:
+        by[(r["arm"], r["condition"], r["task"])].append(r)
+
+    def cell(rs: list[dict[str, Any]]) -> dict[str, Any]:
+        k, n = sum(r["success"] for r in rs), len(rs)
+        lo, hi = wilson(k, n)
+        return {"successes": k, "n": n, "rate": k / n if n else float("nan"), "ci95": [lo, hi], "mean_length": float(np.mean([r["length"] for r in rs])) if rs else float("nan")}
+
+    arms = sorted({r["arm"] for r in records})
+    conditions = list(dict.fromkeys(r["condition"] for r in records))
+    tasks = list(dict.fromkeys(r["task"] for r in records))
+    out: dict[str, Any] = {"arms": {}, "paired": {}}
+    for arm in arms:
+        out["arms"][arm] = {}
+        for cond in conditions:
+            rs = [r for t in tasks for r in by[(arm, cond, t)]]
+            entry = {"pooled": cell(rs), "tasks": {t: cell(by[(arm, cond, t)]) for t in tasks}}
+            out["arms"][arm][cond] = entry
+        if "clean" in out["arms"][arm]:
+            clean = out["arms"][arm]["clean"]["pooled"]["rate"]
+            for cond in conditions:
+                out["arms"][arm][cond]["drop_from_clean"] = clean - out["arms"][arm][cond]["pooled"]["rate"]
+
+    def outcomes(arm: str, cond: str) -> list[bool]:
+        rs = sorted((r for t in tasks for r in by[(arm, cond, t)]), key=lambda r: (r["task"], r["seed"]))
+        return [bool(r["success"]) for r in rs]
+
+    for i, a in enumerate(arms):
+        for b in arms[i + 1 :]:
+            for cond in conditions:
+                out["paired"][f"{a} vs {b} | {cond}"] = mcnemar_exact(outcomes(a, cond), outcomes(b, cond))
+    return out
+
+
+def evaluate(cfg: EvalConfig, progress: bool = True) -> dict[str, Any]:
+    """Evaluate every checkpoint; writes and returns the evaluation record (eval_info.json)."""
+    arms = parse_checkpoints(cfg.checkpoints)
+    jobs = make_jobs(cfg, arms)
+    records = run_jobs(jobs, min(cfg.workers, len(jobs)), cfg.max_steps, cfg.gl_backend, progress)
+    info = {
+        "config": to_dict(cfg),
+        "checkpoints": {k: str(v) for k, v in arms.items()},
+        "seeds": {t: list(range(cfg.seed_start, cfg.seed_start + cfg.episodes)) for t in cfg.tasks},
+        "episodes": records,
+        "summary": summarize(records),
+    }
+    atomic_write_json(Path(cfg.out) / "eval_info.json", info)
+    return info
+
+
+def format_table(summary: dict[str, Any]) -> str:
+    """A markdown table: one row per arm, one column per condition (pooled success, 95% interval)."""
+    arms = list(summary["arms"])
+    conditions = list(next(iter(summary["arms"].values())))
+    lines = ["| arm | " + " | ".join(conditions) + " |", "|---|" + "---|" * len(conditions)]
+    for arm in arms:
+        cells = []
+        for c in conditions:
+            p = summary["arms"][arm][c]["pooled"]
+            cells.append(f"{p['successes']}/{p['n']} = {p['rate']:.2f} [{p['ci95'][0]:.2f}, {p['ci95'][1]:.2f}]")
+        lines.append(f"| {arm} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def presets() -> dict[str, Any]:
+    return {
+        "default": EvalConfig,
+        "smoke": lambda: EvalConfig(episodes=2, max_steps=20, workers=1, videos=1, conditions=("clean", "dim:0.7")),
+        "quick": lambda: EvalConfig(episodes=10, conditions=("clean", "dim:0.7", "gaussian_noise:0.5")),
+        "paper": lambda: EvalConfig(
+            episodes=50, max_steps=200, workers=os.cpu_count() or 2,
+            conditions=("clean", "dim:0.7", "bright:0.7", "tint:1", "light_direction:1", "gaussian_noise:0.3", "gaussian_noise:0.6", "salt_pepper:0.5"),
+        ),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    from gazevla.config import parse
+
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    cfg = parse(presets(), sys.argv[1:] if argv is None else argv, prog="gazevla eval", description=__doc__ or "")
+    info = evaluate(cfg)
+    print(format_table(info["summary"]))
+    print(f"wrote {Path(cfg.out) / 'eval_info.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,389 @@
+"""`gazevla experiment`: the whole pipeline, stage by stage, resumable (the README's main job).
+
+    gazevla experiment --preset quick            # make demo: a few Meta-World tasks, ~15 min on 2 CPU cores
+    gazevla experiment --preset smoke            # CI: the same code, tiny sizes
+    gazevla experiment --preset paper            # 3 training seeds per arm, 50 evaluation episodes per task
+
+Stages (each writes into `out/` and a marker `out/stages/<name>.json`; a rerun skips finished stages, so a
+killed run loses at most the stage it was in, and training stages resume from their last checkpoint):
+  demos      scripted experts on training setups (seeds 0..demos_per_task-1) + held-out setups for alignment
+  priors     one prior per gaze source an arm needs (the gaze source, and its perturbed controls)
+  train      every arm x training seed with the same budget; arms differ only in their gaze prior
+  eval       final checkpoints on shared unseen setups, clean and perturbed (lighting, sensor noise)
+  converge   intermediate checkpoints, clean, for success-versus-steps curves
+  align      attention vs gaze on held-out frames; the attention figure
+  report     report.json, report.md, figures
+Arms: baseline (no gaze term), gaze (the gaze source), perturbed (its patches shuffled), blobs (random
+blobs), other_episode (another episode's gaze), saliency, uniform, glc.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
+from datetime import datetime, timezone
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+from gazevla.config import save_config, to_dict
+from gazevla.evaluate import EvalConfig, evaluate
+from gazevla.gaze.aggregation import AggregationConfig
+from gazevla.train import DataConfig, GazeConfig, OptimConfig, TrainConfig
+from gazevla.train import quick as quick_train
+from gazevla.train import smoke as smoke_train
+from gazevla.utils.io import atomic_write_json, atomic_write_text
+
+log = logging.getLogger(__name__)
+
+STAGES = ("demos", "priors", "train", "eval", "converge", "align", "report")
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    out: Path = Path("runs/experiment")
+    tasks: tuple[str, ...] = ("reach-v3", "button-press-topdown-v3")
+    camera: str = "corner2"
+    image_size: int = 96
+    demos_per_task: int = 30
+    """expert demonstrations per task, on setups 0..demos_per_task-1"""
+    heldout_per_task: int = 3
+    """expert episodes per task on unseen setups, for attention-gaze alignment only"""
+    collect_workers: int = 2
+    gaze_source: str = "visuomotor"
+    gaze_params: tuple[str, ...] = ()
+    prior_size: tuple[int, int] = (64, 64)
+    aggregation: AggregationConfig = field(default_factory=lambda: AggregationConfig(past=2, future=2))
+    arms: tuple[str, ...] = ("baseline", "gaze", "perturbed")
+    train_seeds: tuple[int, ...] = (0,)
+    train: TrainConfig = field(default_factory=quick_train)
+    parallel: int = 2
+    """training processes at once (each with threads_per_run threads)"""
+    threads_per_run: int = 1
+    eval: EvalConfig = field(default_factory=lambda: EvalConfig(episodes=10, conditions=("clean", "dim:0.7", "gaussian_noise:0.5")))
+    convergence_points: int = 3
+    """checkpoints along training (the last is the final one) evaluated clean for the success-vs-steps curve"""
+    convergence_episodes: int = 10
+    threshold: float = 0.5
+    """success rate whose first crossing is reported as 'steps to threshold'"""
+    figure_frames: int = 4
+
+
+def arm_prior(arm: str, cfg: ExperimentConfig) -> tuple[str | None, str | None, tuple[str, ...]]:
+    """Arm -> (prior name, gaze source, source params); baseline has none."""
+    base = cfg.gaze_source
+    table: dict[str, tuple[str | None, str | None, tuple[str, ...]]] = {
+        "baseline": (None, None, ()),
+        "gaze": (base, base, cfg.gaze_params),
+        "perturbed": (f"{base}-shuffled", "perturbed", ("mode=shuffle", f"base={base}")),
+        "blobs": ("blobs", "perturbed", ("mode=blobs",)),
+        "other_episode": (f"{base}-other-episode", "perturbed", ("mode=other_episode", f"base={base}")),
+        "saliency": ("saliency", "saliency", ()),
+        "uniform": ("uniform", "uniform", ()),
+        "glc": ("glc", "glc", cfg.gaze_params),
+    }
+    if arm not in table:
+        raise KeyError(f"unknown arm {arm!r}; choose from {sorted(table)}")
+    return table[arm]
+
+
+class Experiment:
+    def __init__(self, cfg: ExperimentConfig, preset: str = "custom"):
+        self.cfg, self.preset = cfg, preset
+        self.out = Path(cfg.out)
+        self.store = self.out / "demos"
+        self.heldout = self.out / "heldout"
+        self.times: dict[str, float] = {}
+
+    # ----- bookkeeping ------------------------------------------------------------------------------------
+    def marker(self, stage: str) -> Path:
+        return self.out / "stages" / f"{stage}.json"
+
+    def done(self, stage: str) -> dict[str, Any] | None:
+        m = self.marker(stage)
+        return json.loads(m.read_text()) if m.exists() else None
+
+    def finish(self, stage: str, result: dict[str, Any], seconds: float) -> dict[str, Any]:
+        atomic_write_json(self.marker(stage), {**result, "seconds": seconds})
+        return result
+
+    def run(self) -> dict[str, Any]:
+        self.out.mkdir(parents=True, exist_ok=True)
+        save_config(self.cfg, self.out / "config.json")
+        results: dict[str, Any] = {}
+        for stage in STAGES:
+            prev = self.done(stage)
+            if prev is not None and stage != "report":
+                log.info("stage %s: done earlier, skipping", stage)
+                results[stage] = prev
+                self.times[stage] = prev.get("seconds", 0.0)
+                continue
+            log.info("stage %s ...", stage)
+            t0 = time.perf_counter()
+            res = getattr(self, f"stage_{stage}")(results)
+            self.times[stage] = time.perf_counter() - t0
+            results[stage] = self.finish(stage, res, self.times[stage])
+        return results
+
+    # ----- stages -------------------------------------------------------------------------------------------
+    def stage_demos(self, _: dict[str, Any]) -> dict[str, Any]:
+        from gazevla.data.store import EpisodeStore
+        from gazevla.envs.collect import CollectConfig, collect
+
+        c = self.cfg
+        common = dict(tasks=c.tasks, cameras=(c.camera,), image_size=c.image_size, workers=c.collect_workers, gl_backend=c.eval.gl_backend or "")
+        out = {}
+        for name, store, n, seed_base in (("train", self.store, c.demos_per_task, 0), ("heldout", self.heldout, c.heldout_per_task, c.eval.seed_start + 500)):
+            report = collect(CollectConfig(out=store, episodes=n, seed_base=seed_base, **common))
+            if not report.complete:
+                raise RuntimeError(f"demo collection into {store} did not reach {n} successful episodes per task: {report.tasks}")
+            st = EpisodeStore(store)
+            out[name] = {"episodes": len(st), "frames": sum(st.meta(i)["length"] for i in st.indices()), "seconds": report.seconds}
+        return out
+
+    def priors_needed(self) -> list[tuple[str, str, tuple[str, ...]]]:
+        needed: dict[str, tuple[str, str, tuple[str, ...]]] = {}
+        for arm in self.cfg.arms:
+            name, source, params = arm_prior(arm, self.cfg)
+            if name is None or source is None:
+                continue
+            if source == "perturbed" and "mode=blobs" not in params:  # controls read the gaze prior
+                base, bsrc, bparams = arm_prior("gaze", self.cfg)
+                assert base is not None and bsrc is not None
+                needed.setdefault(base, (base, bsrc, bparams))
+            needed[name] = (name, source, params)
+        return list(needed.values())
+
+    def stage_priors(self, _: dict[str, Any]) -> dict[str, Any]:
+        from gazevla.gaze.priors import PriorsConfig, make_priors
+
+        c = self.cfg
+        made = []
+        for store in (self.store, self.heldout):
+            for name, source, params in self.priors_needed():
+                make_priors(PriorsConfig(store=store, source=source, source_params=params, name=name, camera=c.camera, size=c.prior_size, aggregation=c.aggregation))
+                made.append(f"{store.name}/{name}")
+        return {"priors": made}
+
+    def run_dirs(self) -> dict[str, Path]:
+        return {f"{arm}@s{seed}": self.out / "train" / f"{arm}_s{seed}" for arm in self.cfg.arms for seed in self.cfg.train_seeds}
+
+    def train_config(self, arm: str, seed: int, run_dir: Path) -> TrainConfig:
+        c = self.cfg
+        prior, _, _ = arm_prior(arm, c)
+        every = max(1, c.train.steps // max(1, c.convergence_points))
+        return replace(
+            c.train,
+            run_dir=run_dir, seed=seed, save_every=every, eval_every=min(c.train.eval_every, every), progress=False,
+            threads=c.threads_per_run, data=replace(c.train.data, store=self.store),
+            gaze=replace(c.train.gaze, prior=prior, camera=c.camera if prior else None),
+        )
+
+    def stage_train(self, _: dict[str, Any]) -> dict[str, Any]:
+        jobs = [(name, self.train_config(name.split("@")[0], int(name.split("@s")[1]), d)) for name, d in self.run_dirs().items()]
+        if self.cfg.parallel <= 1:
+            finished = [_train_one(cfg) for _, cfg in jobs]
+        else:
+            with ProcessPoolExecutor(self.cfg.parallel, mp_context=get_context("spawn")) as ex:
+                finished = list(ex.map(_train_one, [cfg for _, cfg in jobs]))
+        return {"runs": {name: res for (name, _), res in zip(jobs, finished)}}
+
+    def final_checkpoints(self, results: dict[str, Any]) -> dict[str, str]:
+        return {name: r["checkpoint"] for name, r in results["train"]["runs"].items()}
+
+    def stage_eval(self, results: dict[str, Any]) -> dict[str, Any]:
+        ckpts = self.final_checkpoints(results)
+        ecfg = replace(self.cfg.eval, tasks=self.cfg.tasks, out=self.out / "eval", checkpoints=tuple(f"{k}={v}" for k, v in ckpts.items()))
+        info = evaluate(ecfg)
+        return {"eval_info": str(self.out / "eval" / "eval_info.json"), "episodes": len(info["episodes"])}
+
+    def stage_converge(self, results: dict[str, Any]) -> dict[str, Any]:
+        from gazevla.training.checkpoint import list_checkpoints
+
+        ckpts = {}
+        for name, d in self.run_dirs().items():
+            for step, path in list_checkpoints(d):
+                ckpts[f"{name}#{step}"] = str(path)
+        ecfg = replace(
+            self.cfg.eval, tasks=self.cfg.tasks, out=self.out / "converge", conditions=("clean",), videos=0,
+            episodes=self.cfg.convergence_episodes, checkpoints=tuple(f"{k}={v}" for k, v in ckpts.items()),
+        )
+        info = evaluate(ecfg)
+        return {"eval_info": str(self.out / "converge" / "eval_info.json"), "episodes": len(info["episodes"])}
+
+    def stage_align(self, results: dict[str, Any]) -> dict[str, Any]:
+        from gazevla.alignment import alignment_report, attention_maps
+        from gazevla.data.store import EpisodeStore
+        from gazevla.policies import load_policy
+
+        c = self.cfg
+        store = EpisodeStore(self.heldout)
+        gaze_prior, _, _ = arm_prior("gaze", c)
+        episodes = store.indices()
+        report, maps_by_arm = {}, {}
+        for name, ckpt in self.final_checkpoints(results).items():
+            policy = load_policy(ckpt)
+            layers = c.train.gaze.layers
+            maps = attention_maps(policy, store, episodes, c.camera, gaze_prior, layers)
+            report[name] = alignment_report(maps)
+            maps_by_arm[name] = (policy, maps)
+        figure = self.attention_figure(store, maps_by_arm, gaze_prior)
+        return {"alignment": report, "figure": figure}
+
+    def attention_figure(self, store: Any, maps_by_arm: dict[str, Any], gaze_prior: str | None) -> str:
+        """Observation | gaze | each arm's attention (first training seed), on frames spread over held-out episodes."""
+        import numpy as np
+
+        from gazevla.patches import grid_to_image
+        from gazevla.report import plot_attention
+
+        c = self.cfg
+        first: dict[str, Any] = {}
+        for name, v in maps_by_arm.items():
+            first.setdefault(name.split("@")[0], v)
+        any_maps = next(iter(first.values()))[1]
+        ep_t = any_maps["episode_t"].numpy()
+        rows = np.linspace(0, len(ep_t) - 1, c.figure_frames + 2).round().astype(int)[1:-1]
+        panels = []
+        for r in rows:
+            ep, t = int(ep_t[r, 0]), int(ep_t[r, 1])
+            episode = store.read(ep, cameras=[c.camera])
+            frame = np.asarray(episode.frames[c.camera][t])
+            panel: dict[str, Any] = {"title": f"{episode.task} t={t}", "frame": frame}
+            if gaze_prior:
+                heat, _ = store.read_prior(gaze_prior, ep)
+                panel["gaze prior"] = heat[t]
+            for arm, (policy, maps) in first.items():
+                panel[f"{arm} attention"] = grid_to_image(maps["attention"][r], policy.geometry(c.camera), frame.shape[:2]).numpy()
+            panels.append(panel)
+        columns = (["gaze prior"] if gaze_prior else []) + [f"{arm} attention" for arm in first]
+        path = self.out / "figures" / "attention.png"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        plot_attention(panels, columns, path)
+        return str(path.relative_to(self.out))
+
+    def stage_report(self, results: dict[str, Any]) -> dict[str, Any]:
+        from gazevla.report import (
+            convergence,
+            machine_summary,
+            markdown,
+            paired_tests,
+            plot_convergence,
+            plot_success,
+            success_table,
+            verdict,
+        )
+        from gazevla.training.logger import read_metrics
+
+        c = self.cfg
+        ev = json.loads(Path(results["eval"]["eval_info"]).read_text())
+        success = success_table(ev["episodes"])
+        conv_records = json.loads(Path(results["converge"]["eval_info"]).read_text())["episodes"]
+        curves: dict[str, dict[int, list[int]]] = {}
+        for r in conv_records:
+            name, step = r["arm"].rsplit("#", 1)
+            cell = curves.setdefault(name.split("@")[0], {}).setdefault(int(step), [0, 0])
+            cell[0] += int(r["success"])
+            cell[1] += 1
+        conv = convergence({a: {s: (k, n) for s, (k, n) in pts.items()} for a, pts in curves.items()}, c.threshold)
+        losses = {}
+        for name, d in self.run_dirs().items():
+            if name.endswith(f"@s{c.train_seeds[0]}"):
+                recs = read_metrics(d / "metrics.jsonl")
+                losses[name.split("@")[0]] = [(r["step"], r["loss/action"], r.get("val/gaze_kl")) for r in recs if "loss/action" in r]
+        figs = self.out / "figures"
+        figs.mkdir(parents=True, exist_ok=True)
+        plot_success(success, figs / "success.png")
+        plot_convergence(conv, losses, figs / "convergence.png")
+        demos = results["demos"]["train"]
+        report = {
+            "preset": self.preset,
+            "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+            "machine": machine_summary(),
+            "wall_time_s": sum(self.times.values()),
+            "stage_times_s": dict(self.times),
+            "tasks": list(c.tasks),
+            "demos": {"episodes": demos.get("episodes"), "frames": demos.get("frames")},
+            "train": {"steps": c.train.steps, "batch_size": c.train.batch_size, "seeds": list(c.train_seeds), "gaze_weight": c.train.gaze.weight, "gaze_layers": list(c.train.gaze.layers), "arms": list(c.arms)},
+            "eval": {"episodes": c.eval.episodes, "conditions": list(c.eval.conditions), "seeds": f"{c.eval.seed_start}..{c.eval.seed_start + c.eval.episodes - 1}"},
+            "success": success,
+            "paired": paired_tests(ev["episodes"]),
+            "verdict": verdict(success),
+            "convergence": conv,
+            "alignment": {n.split("@")[0] if len(c.train_seeds) == 1 else n: v for n, v in results["align"]["alignment"].items()},
+            "figures": {"success": "figures/success.png", "convergence": "figures/convergence.png", "attention": results["align"]["figure"]},
+            "videos": [str(Path(e["video"]).relative_to(self.out)) for e in ev["episodes"] if e.get("video")],
+            "config": to_dict(c),
+        }
+        atomic_write_json(self.out / "report.json", report)
+        atomic_write_text(self.out / "report.md", markdown(report))
+        return {"report": str(self.out / "report.md")}
+
+
+def _train_one(cfg: TrainConfig) -> dict[str, Any]:
+    """Train one run to completion, resuming from its newest checkpoint if it has one."""
+    from gazevla.train import train
+    from gazevla.training.checkpoint import latest_checkpoint, list_checkpoints
+
+    logging.basicConfig(level=logging.WARNING)
+    done = [s for s, _ in list_checkpoints(cfg.run_dir) if s >= cfg.steps]
+    if done:
+        return {"checkpoint": str(latest_checkpoint(cfg.run_dir)), "step": done[-1], "resumed": False}
+    resume = latest_checkpoint(cfg.run_dir) is not None
+    res = train(replace(cfg, resume=resume))
+    return {"checkpoint": str(res["checkpoint"]), "step": int(res["step"]), "resumed": resume, "final_metrics": res["metrics"]}
+
+
+# ----- presets ------------------------------------------------------------------------------------------------
+def quick() -> ExperimentConfig:
+    return ExperimentConfig(out=Path("runs/quick"))
+
+
+def smoke() -> ExperimentConfig:
+    t = smoke_train()
+    return ExperimentConfig(
+        out=Path("runs/smoke"), tasks=("reach-v3",), image_size=48, demos_per_task=3, heldout_per_task=1, collect_workers=1,
+        prior_size=(32, 32), train=replace(t, steps=12, gaze=GazeConfig(weight=0.1)), parallel=1,
+        eval=EvalConfig(episodes=2, max_steps=15, workers=1, videos=1, conditions=("clean", "dim:0.7")),
+        convergence_points=2, convergence_episodes=1, figure_frames=2,
+    )
+
+
+def paper() -> ExperimentConfig:
+    t = quick_train()
+    return ExperimentConfig(
+        out=Path("runs/paper"), tasks=("reach-v3", "button-press-topdown-v3", "pick-place-v3", "drawer-open-v3", "push-v3"),
+        image_size=128, demos_per_task=50, heldout_per_task=5,
+        arms=("baseline", "gaze", "perturbed", "blobs", "other_episode", "saliency", "uniform"),
+        train_seeds=(0, 1, 2),
+        train=replace(t, steps=20_000, policy=dataclasses.replace(t.policy, image_hw=(128, 128), patch_size=16),
+                      optim=OptimConfig(lr=5e-4, warmup_steps=500, min_lr_frac=0.05), data=DataConfig()),
+        eval=EvalConfig(episodes=50, max_steps=200, conditions=("clean", "dim:0.7", "bright:0.7", "tint:1", "gaussian_noise:0.3", "gaussian_noise:0.6", "salt_pepper:0.5")),
+        convergence_points=8, convergence_episodes=20,
+    )
+
+
+PRESETS = {"quick": quick, "smoke": smoke, "paper": paper}
+
+
+def main(argv: list[str] | None = None) -> int:
+    from gazevla.config import parse, split_preset
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    args = sys.argv[1:] if argv is None else argv
+    preset, _ = split_preset(args, "quick")
+    cfg = parse(PRESETS, args, prog="gazevla experiment", description=__doc__ or "")
+    t0 = time.perf_counter()
+    Experiment(cfg, preset).run()
+    print((Path(cfg.out) / "report.md").read_text())
+    print(f"experiment finished in {(time.perf_counter() - t0) / 60:.1f} min; report: {Path(cfg.out) / 'report.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
