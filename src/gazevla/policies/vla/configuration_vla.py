@@ -1,0 +1,158 @@
+"""Configuration of the reference VLA policy (frozen dataclasses, presets `tiny` and `paper`).
+
+A config has two kinds of fields: architecture choices (widths, depth, image and patch size, head) set by a
+preset, and data-dependent fields (cameras and their stored frame sizes, state/action dimensions, the
+tokenizer's vocabulary size) that `resolve()` fills in from the training data set. A resolved config fully
+determines the parameter shapes; it is stored as `config.json` beside `model.safetensors`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, Literal
+
+Head = Literal["l1", "flow"]
+Orientation = Literal["none", "rot180", "hflip", "vflip"]
+
+
+@dataclass(frozen=True)
+class VLAConfig:
+    # ----- vision ---------------------------------------------------------------------------------------
+    cameras: tuple[str, ...] = ()
+    """camera names the policy sees, in token order (empty: every camera of the store, sorted)"""
+    camera_hw: tuple[tuple[int, int], ...] = ()
+    """stored frame size (H, W) of each camera, aligned with `cameras` (filled from the data)"""
+    image_hw: tuple[int, int] = (96, 96)
+    """policy input size (H, W) every camera is resized (stretched) to"""
+    patch_size: int = 12
+    """pixels per patch token side: 96 px / 12 = an 8 x 8 token grid"""
+    stem_stride: int = 4
+    """the conv stem: a stride-`stem_stride` patchify conv, a 3x3 conv, then a stride-(patch/stem) conv"""
+    stem_channels: int = 32
+    orientation: Orientation = "none"
+    """flip applied to stored frames before the policy sees them (stored frames are upright already)"""
+    # ----- language -------------------------------------------------------------------------------------
+    tokenizer: Literal["words", "bytes"] = "words"
+    """words: a vocabulary built from the training instructions; bytes: UTF-8 bytes (any text)"""
+    max_text_len: int = 16
+    vocab_size: int = 0
+    """filled from the tokenizer"""
+    # ----- transformer ----------------------------------------------------------------------------------
+    dim: int = 128
+    depth: int = 4
+    heads: int = 4
+    mlp_ratio: float = 2.0
+    dropout: float = 0.0
+    # ----- proprioception and actions -------------------------------------------------------------------
+    state_dim: int = 0
+    action_dim: int = 0
+    chunk: int = 4
+    """K: actions predicted per forward pass (the action query tokens)"""
+    head: Head = "l1"
+    """l1: regression of normalised actions; flow: flow matching (pi0-style), sampled with Euler steps"""
+    flow_steps: int = 10
+    # ----- inference ------------------------------------------------------------------------------------
+    n_action_steps: int = 1
+    """receding horizon: execute the first n actions of a chunk, then predict a new chunk"""
+    temporal_ensemble: float | None = None
+    """if set, predict every step and average all chunks' predictions for the current step with weights
+    exp(-coef * age_index) (ACT's temporal ensembling; 0.0 = plain mean); overrides n_action_steps"""
+    norm_eps: float = 1e-3
+    """floor on the standard deviations used to normalise state and action"""
+
+    # ------------------------------------------------------------------------------------------------------
+    def __post_init__(self) -> None:
+        H, W = self.image_hw
+        if self.patch_size <= 0 or H % self.patch_size or W % self.patch_size:
+            raise ValueError(f"image_hw {self.image_hw} is not divisible into {self.patch_size} px patches")
+        if self.patch_size % self.stem_stride:
+            raise ValueError(
+                f"patch_size {self.patch_size} must be a multiple of stem_stride {self.stem_stride}"
+            )
+        if self.dim % self.heads:
+            raise ValueError(f"dim {self.dim} must be divisible by heads {self.heads}")
+        if self.chunk < 1 or not 1 <= self.n_action_steps <= self.chunk:
+            raise ValueError(f"need 1 <= n_action_steps ({self.n_action_steps}) <= chunk ({self.chunk})")
+        if self.camera_hw and len(self.camera_hw) != len(self.cameras):
+            raise ValueError(f"camera_hw {self.camera_hw} must align with cameras {self.cameras}")
+        if self.head not in ("l1", "flow"):
+            raise ValueError(f"unknown action head {self.head!r}; use 'l1' or 'flow'")
+
+    @property
+    def grid_hw(self) -> tuple[int, int]:
+        return self.image_hw[0] // self.patch_size, self.image_hw[1] // self.patch_size
+
+    @property
+    def n_patches(self) -> int:
+        h, w = self.grid_hw
+        return h * w
+
+    @property
+    def resolved(self) -> bool:
+        return (
+            bool(self.cameras)
+            and len(self.camera_hw) == len(self.cameras)
+            and self.state_dim > 0
+            and self.action_dim > 0
+            and self.vocab_size > 0
+        )
+
+    def check_resolved(self) -> None:
+        if not self.resolved:
+            raise ValueError(
+                "the VLA config is not resolved: cameras, camera_hw, state_dim, action_dim and vocab_size come from the "
+                f"training data (call config.resolve(...)); got cameras={self.cameras}, camera_hw={self.camera_hw}, "
+                f"state_dim={self.state_dim}, action_dim={self.action_dim}, vocab_size={self.vocab_size}"
+            )
+
+    def resolve(self, **data_fields: Any) -> VLAConfig:
+        return dataclasses.replace(self, **data_fields)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        return {
+            k: ([list(x) if isinstance(x, tuple) else x for x in v] if isinstance(v, tuple) else v)
+            for k, v in d.items()
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> VLAConfig:
+        fields = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - fields - {"type"})
+        if unknown:
+            raise ValueError(f"unknown VLA config field(s) {unknown}")
+        kw = {k: v for k, v in d.items() if k in fields}
+        for k in ("cameras",):
+            if k in kw:
+                kw[k] = tuple(kw[k])
+        if "camera_hw" in kw:
+            kw["camera_hw"] = tuple(tuple(x) for x in kw["camera_hw"])
+        if "image_hw" in kw:
+            kw["image_hw"] = tuple(kw["image_hw"])
+        return cls(**kw)
+
+
+def tiny() -> VLAConfig:
+    """CPU-sized (about 0.6 M parameters): 96 px -> 8 x 8 tokens, width 128, 4 layers, chunks of 4."""
+    return VLAConfig()
+
+
+def paper() -> VLAConfig:
+    """GPU-sized: 224 px -> 16 x 16 tokens of 14 px (a ViT-L/14-like grid), width 512, 8 layers, chunks of 10."""
+    return VLAConfig(
+        image_hw=(224, 224),
+        patch_size=14,
+        stem_stride=2,
+        stem_channels=64,
+        dim=512,
+        depth=8,
+        heads=8,
+        mlp_ratio=4.0,
+        max_text_len=32,
+        chunk=10,
+        n_action_steps=5,
+    )
+
+
+PRESETS = {"tiny": tiny, "paper": paper}

@@ -1,0 +1,1 @@
+"""Training helpers: checkpoints (safetensors + JSON, atomic), metric loggers, EMA."""
