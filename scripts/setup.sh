@@ -12,8 +12,9 @@ TORCH_SPEC="${TORCH_SPEC:-torch==2.13.0}"
 
 log() { printf '[setup] %s\n' "$*"; }
 
-# System packages for headless OpenGL (EGL via Mesa; OSMesa as the fallback).
-GL_PACKAGES=(libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 libosmesa6)
+# System packages for headless OpenGL through EGL (Mesa's llvmpipe renders on the CPU). OSMesa
+# (libosmesa6) is the fallback MUJOCO_GL=osmesa uses; it is not needed when EGL works.
+GL_PACKAGES=(libegl1 libegl-mesa0 libgl1-mesa-dri libgles2)
 missing=()
 if command -v dpkg-query >/dev/null 2>&1; then
   for p in "${GL_PACKAGES[@]}"; do

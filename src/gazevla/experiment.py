@@ -205,10 +205,13 @@ class Experiment:
     def stage_converge(self, results: dict[str, Any]) -> dict[str, Any]:
         from gazevla.training.checkpoint import list_checkpoints
 
-        ckpts = {}
+        ckpts = {}  # intermediate checkpoints only: the final ones' clean results come from the eval stage
         for name, d in self.run_dirs().items():
             for step, path in list_checkpoints(d):
-                ckpts[f"{name}#{step}"] = str(path)
+                if step < self.cfg.train.steps:
+                    ckpts[f"{name}#{step}"] = str(path)
+        if not ckpts:
+            return {"eval_info": None, "episodes": 0}
         ecfg = replace(
             self.cfg.eval, tasks=self.cfg.tasks, out=self.out / "converge", conditions=("clean",), videos=0,
             episodes=self.cfg.convergence_episodes, checkpoints=tuple(f"{k}={v}" for k, v in ckpts.items()),
@@ -283,9 +286,12 @@ class Experiment:
         c = self.cfg
         ev = json.loads(Path(results["eval"]["eval_info"]).read_text())
         success = success_table(ev["episodes"])
-        conv_records = json.loads(Path(results["converge"]["eval_info"]).read_text())["episodes"]
+        conv_path = results["converge"]["eval_info"]
+        conv_records = json.loads(Path(conv_path).read_text())["episodes"] if conv_path else []
+        last_seed = c.eval.seed_start + min(c.convergence_episodes, c.eval.episodes)
+        final_clean = [{**r, "arm": f"{r['arm']}#{c.train.steps}"} for r in ev["episodes"] if r["condition"] == "clean" and r["seed"] < last_seed]
         curves: dict[str, dict[int, list[int]]] = {}
-        for r in conv_records:
+        for r in conv_records + final_clean:
             name, step = r["arm"].rsplit("#", 1)
             cell = curves.setdefault(name.split("@")[0], {}).setdefault(int(step), [0, 0])
             cell[0] += int(r["success"])
