@@ -218,3 +218,28 @@ def test_cli(tmp_path, capsys):
         importers.main(["hdf5", "--file", str(tmp_path / "missing.hdf5"), "--out", str(tmp_path / "s")]) == 1
     )
     assert "missing.hdf5 does not exist" in capsys.readouterr().err
+
+
+def test_export_priors_of_hdf5_episodes_stays_upright(tmp_path):
+    pytest.importorskip("pyarrow")
+    from gazevla.data.lerobot_v3 import export_priors_lerobot, read_priors_lerobot
+    from gazevla.gaze.aggregation import AggregationConfig
+    from gazevla.gaze.priors import PriorsConfig, make_priors
+
+    src = write_libero(tmp_path / "put_the_bowl_on_the_plate_demo.hdf5", lengths=(4, 5), gaze=True)
+    import_hdf5(cfg(src, tmp_path / "s", gaze_key="gaze_uv"))
+    pc = PriorsConfig(
+        store=tmp_path / "s",
+        source="recorded",
+        camera="agentview_rgb",
+        size=(12, 16),
+        aggregation=AggregationConfig(past=0, future=0),
+    )
+    make_priors(pc, progress=False)
+    sc = read_priors_lerobot(export_priors_lerobot(tmp_path / "s", "recorded", tmp_path / "x"))
+    assert sc.episode_index.tolist() == [0] * 4 + [1] * 5 and sc.index.tolist() == list(range(9))
+    assert not any(e["rotation_undone"] for e in sc.info["episodes"])
+    heat, ok = sc.get(1, 0)
+    r, c = np.unravel_index(heat.argmax(), heat.shape)  # the peak is on the marker of the upright frame
+    assert ok and (r, c) == ((HW[0] - 1 - MARK[0]) * 12 // HW[0], (HW[1] - 1 - MARK[1]) * 16 // HW[1])
+    assert not sc.get(1, 1)[1]  # the NaN gaze frame is invalid

@@ -27,8 +27,8 @@ import resumes where it stopped. What lands in the store:
 Orientation: frames are stored as the data set holds them (LeRobot data sets are upright; LeRobot's LIBERO
 conversions were already rotated), and gaze stays in that frame. `rotate180` (none | all | comma-separated
 cameras) turns cameras by 180 degrees at import (frames and that camera's gaze, u -> 1-u, v -> 1-v); it is
-recorded in meta["orientation_applied"] and undone by the priors export, so the sidecar is always in the
-data set's frame.
+recorded in meta["orientation_applied"] and undone by the priors export, so a sidecar for a LeRobot-imported
+episode is always in the data set's own frame.
 
 Export (`gazevla import export-priors --store STORE --prior NAME --out DIR`): `export_priors_lerobot` writes
 DIR/priors.parquet (columns episode_index, frame_index, index int64; prior fixed_size_list<float32>[h*w],
@@ -624,7 +624,9 @@ def export_priors_lerobot(
     LeRobot import recorded (meta["source"]["episode_index"], extras lerobot.frame_index / lerobot.index).
     episode_map {store index: episode_index} overrides that; when given, only mapped episodes are exported.
     Episodes not imported from LeRobot get episode_index = store index, frame_index = 0..T-1 and a running
-    index. Heatmaps are exported in the data set's own frame (a 180-degree turn applied at import is undone).
+    index. Frames: for LeRobot-imported episodes the heatmaps are put back into the data set's own frame (a
+    180-degree turn applied at import is undone); other episodes (e.g. HDF5 imports, whose LIBERO frames were
+    turned upright, as LeRobot's LIBERO conversions are) are exported in the store's upright frame.
     Returns the parquet path."""
     pa, pq = _pa()
     store = store if isinstance(store, EpisodeStore) else EpisodeStore(store)
@@ -678,7 +680,11 @@ def export_priors_lerobot(
                         f"priors {prior_name!r}: episode {i} has {h}x{w} maps, others {shape[0]}x{shape[1]}"
                     )
                 ep = store.read(i, cameras=[])
-                if ep.meta.get("orientation_applied", {}).get(camera) == "rot180":
+                undo = (
+                    ep.meta.get("source", {}).get("format") == "lerobot_v3"
+                    and ep.meta.get("orientation_applied", {}).get(camera) == "rot180"
+                )
+                if undo:
                     heat = heat[:, ::-1, ::-1]
                 frame_index = (
                     np.asarray(ep.extras["lerobot.frame_index"], np.int64)
@@ -707,7 +713,7 @@ def export_priors_lerobot(
                     writer = pq.ParquetWriter(tmp, batch.schema, compression="zstd")
                 writer.write_table(batch)
                 n_frames += T
-                episodes.append({"episode_index": e, "store_index": i, "length": T})
+                episodes.append({"episode_index": e, "store_index": i, "length": T, "rotation_undone": undo})
         finally:
             if writer is not None:
                 writer.close()
@@ -730,7 +736,8 @@ def export_priors_lerobot(
                 "valid": "bool",
             },
             "layout": "prior is a row-major (h, w) map flattened; rows with valid=true sum to 1; invalid rows are zero",
-            "frame": "u right, v down, in the data set's frames as stored in the LeRobot data set",
+            "frame": "u right, v down; LeRobot-imported episodes in the data set's own frames (rotation_undone "
+            "tells where a turn applied at import was undone), other episodes in the store's upright frames",
             "num_frames": n_frames,
             "num_episodes": len(episodes),
             "episodes": episodes,
