@@ -1,0 +1,124 @@
+"""`gazevla viz`: figures of episodes and their gaze.
+
+    gazevla viz strip --store runs/smoke/demos --episode 0 --camera corner2 --out strip.png
+    gazevla viz strip --store runs/smoke/demos --episode 1000 --prior visuomotor --out strip.png
+    gazevla viz strip --store ... --source visuomotor --source-params lead_time_s=0.5 jitter=0 --frames 10
+
+`strip` draws frames of one episode with a gaze heatmap and point over them (by default from the
+`visuomotor` source computed on the fly; `--prior NAME` shows a prior stored in the episode store instead).
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+SUBCOMMANDS = {"strip": "frames of an episode with its gaze heatmap and point"}
+
+
+@dataclass(frozen=True)
+class StripConfig:
+    store: Path = Path("runs/smoke/demos")
+    """episode store"""
+    episode: int = 0
+    """episode index in the store"""
+    camera: str = ""
+    """camera to draw (default: the episode's first)"""
+    out: Path = Path("strip.png")
+    """PNG to write"""
+    frames: int = 8
+    """number of frames, spread evenly over the episode"""
+    source: str = "visuomotor"
+    """gaze source computed on the fly (ignored with --prior)"""
+    source_params: tuple[str, ...] = ()
+    """source parameters as key=value (values parsed as JSON when possible)"""
+    prior: str = ""
+    """draw this stored prior instead of a source"""
+    heatmap_size: int = 64
+    """heatmap grid (cells per side) for an on-the-fly source"""
+
+
+def strip(cfg: StripConfig) -> Path:
+    import numpy as np
+
+    from gazevla.data.store import EpisodeStore
+    from gazevla.gaze.priors import parse_params
+    from gazevla.gaze.sources import make_gaze_source
+    from gazevla.viz.strip import draw_strip
+
+    store = EpisodeStore(cfg.store)
+    if cfg.episode not in store:
+        have = store.indices()
+        raise SystemExit(
+            f"no episode {cfg.episode} in {cfg.store}; it has {len(have)}: {have[:20]}{' ...' if len(have) > 20 else ''}"
+        )
+    ep = store.read(cfg.episode)
+    camera = cfg.camera or next(iter(ep.frames))
+    if camera not in ep.frames:
+        raise SystemExit(f"episode {cfg.episode} has no camera {camera!r}; cameras: {sorted(ep.frames)}")
+    points = target = None
+    names: tuple[str, ...] = ()
+    if cfg.prior:
+        heat, valid = store.read_prior(cfg.prior, cfg.episode)
+        label = f"prior {cfg.prior}"
+    else:
+        source = make_gaze_source(cfg.source, **parse_params(cfg.source_params))
+        if hasattr(source, "bind"):
+            source.bind(store)
+        heat, valid = source(ep, camera, (cfg.heatmap_size, cfg.heatmap_size))
+        label = f"source {cfg.source}"
+        if hasattr(source, "trace"):
+            tr = source.trace(ep, camera)
+            points, target, names = tr.uv, tr.target, tr.targets
+    if points is None:  # mark the heatmap's peak
+        flat = np.asarray(heat).reshape(len(heat), -1)
+        h, w = np.asarray(heat).shape[1:]
+        peak = flat.argmax(1)
+        points = np.stack([(peak % w + 0.5) / w, (peak // w + 0.5) / h], axis=1).astype(np.float32)
+        points[~np.asarray(valid, dtype=bool)] = np.nan
+    fig = draw_strip(
+        ep,
+        camera,
+        heatmaps=heat,
+        valid=valid,
+        points=points,
+        target=target,
+        target_names=names,
+        n_frames=cfg.frames,
+        title=f"episode {cfg.episode}: {ep.task} - {ep.instruction} ({camera}, {label})",
+        out=cfg.out,
+    )
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return Path(cfg.out)
+
+
+def _usage() -> str:
+    lines = ["usage: gazevla viz <figure> [options]", "", "figures:"]
+    lines += [f"  {k:<8} {v}" for k, v in SUBCOMMANDS.items()]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from gazevla.config import parse
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(_usage())
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name == "strip":
+        cfg = parse(
+            {"default": StripConfig}, rest, prog="gazevla viz strip", description=__doc__.split("\n\n")[0]
+        )
+        path = strip(cfg)
+        print(f"wrote {path}")
+        return 0
+    print(f"gazevla viz: unknown figure {name!r}\n\n{_usage()}", file=sys.stderr)
+    return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
