@@ -1,0 +1,74 @@
+"""`gazevla glc train` / `eval` end to end on a tiny synthetic store, and the data helpers they use."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from gazevla.glc.cli import main
+from gazevla.glc.data import (
+    StoreClipDataset,
+    episode_gaze_points,
+    fixation_mask,
+    split_episodes,
+    write_synthetic_gaze_store,
+)
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    return write_synthetic_gaze_store(tmp_path_factory.mktemp("glc") / "store", episodes=4, length=10, size=32, camera="cam", tasks=1)
+
+
+def test_split_is_deterministic_and_per_task(tmp_path):
+    s = write_synthetic_gaze_store(tmp_path / "s", episodes=6, length=2, size=8, camera="cam", tasks=2)
+    assert split_episodes(s, holdout_every=3) == {"train": [0, 1, 2, 3], "heldout": [4, 5]}
+    assert split_episodes(s, holdout=(1,)) == {"train": [0, 2, 3, 4, 5], "heldout": [1]}
+    with pytest.raises(KeyError):
+        split_episodes(s, holdout=(9,))
+
+
+def test_dataset_items_and_gaze(store):
+    ds = StoreClipDataset(store, [0, 1], "cam", crop_size=96, num_frames=8, stride=2, hop=2)
+    assert len(ds) == 10
+    clip, gaze, valid = ds[1]  # anchor frame 2 of episode 0
+    assert clip.shape == (3, 8, 96, 96) and clip.dtype.is_floating_point is False
+    pts, ok = episode_gaze_points(store.read(0), "cam", "recorded")
+    np.testing.assert_allclose(gaze[4].numpy(), pts[2], atol=1e-6)  # square frames: crop coords = frame coords
+    assert valid.all() and ok.all()
+    with pytest.raises(KeyError, match="no recorded gaze"):
+        episode_gaze_points(store.read(0), "other", "recorded")
+    m = fixation_mask(np.array([[0.1, 0.1], [0.1, 0.12], [0.5, 0.5]]), np.ones(3, bool), 0.05)
+    assert m.tolist() == [True, True, False]
+
+
+def test_train_and_eval_commands_write_their_outputs(store, tmp_path, capsys):
+    out = tmp_path / "run"
+    args = ["train", "--store", str(store.root), "--camera", "cam", "--gaze-source", "recorded", "--out", str(out),
+            "--holdout-every", "2", "--optim.steps", "2", "--optim.batch-size", "2", "--optim.warmup-steps", "1"]
+    assert main(args) == 0
+    for name in ("final/model.safetensors", "final/config.json", "final/glc_train.json", "run.json", "eval.json", "train_log.jsonl"):
+        assert (out / name).exists(), name
+    info = json.loads((out / "final" / "glc_train.json").read_text())
+    assert info["split"] == {"train": [0, 2], "heldout": [1, 3]} and info["steps"] == 2
+    rep = json.loads((out / "eval.json").read_text())
+    assert set(rep["scores"]["all_valid"]) == {"glc", "centre_prior", "uniform"}
+    assert rep["episodes"] == [1, 3] and rep["scores"]["all_valid"]["glc"]["n_frames"] == 20
+
+    report = tmp_path / "eval2.json"
+    assert main(["eval", "--store", str(store.root), "--checkpoint", str(out), "--mode", "centre",
+                 "--fixation-threshold", "0.05", "--out", str(report)]) == 0
+    rep2 = json.loads(report.read_text())
+    assert rep2["source"]["mode"] == "centre" and rep2["episodes"] == [1, 3] and "fixation" in rep2["scores"]
+    for sc in rep2["scores"]["all_valid"].values():
+        assert 0 <= sc["f1"] <= 1 and 0 <= sc["recall"] <= 1
+    assert "centre_prior" in capsys.readouterr().out
+
+
+def test_cli_usage_and_errors(tmp_path, store):
+    assert main([]) == 0
+    assert main(["bogus"]) == 2
+    with pytest.raises(FileNotFoundError):
+        main(["eval", "--store", str(store.root), "--checkpoint", str(tmp_path / "missing")])
