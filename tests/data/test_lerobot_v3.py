@@ -460,3 +460,15 @@ def test_h264_several_files_any_order(tmp_path):
         np.testing.assert_allclose(levels, 30 + 60 * e + 5 * np.arange(T), atol=2.0)
         np.testing.assert_array_equal(ep.state, np.stack([np.full(T, e), np.arange(T)], 1))
         assert "gaze_uv.top" not in ep.extras
+
+
+def test_non_finite_state_is_refused_by_name(copy, tmp_path):
+    t = pq.read_table(copy / DATA)
+    states = t.column("observation.state").to_pylist()
+    states[25][0] = float("nan")  # episode 1, frame 5
+    col = pa.array(states, t.schema.field("observation.state").type)
+    t = t.set_column(t.column_names.index("observation.state"), "observation.state", col)
+    pq.write_table(t, copy / DATA)
+    with pytest.raises(DataImportError, match=r"/ds: episode 1: 'state' must be a finite"):
+        import_lerobot(cfg(copy, tmp_path / "s"))
+    _assert_no_partial(tmp_path / "s", [0])

@@ -104,7 +104,7 @@ def write_episodes(
                     store.write(ep, item.index)
                 except ValueError as e:
                     raise DataImportError(
-                        f"{item.identity.get('path', '?')}: episode {item.identity.get('episode')}: {e}"
+                        f"{item.identity.get('path') or item.identity.get('root', '?')}: episode {item.identity.get('episode')}: {e}"
                     ) from e
                 imported += 1
                 frames += ep.length

@@ -43,7 +43,6 @@ import hashlib
 import json
 import logging
 import sys
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -815,13 +814,3 @@ def export_main(argv: list[str]) -> int:
     path = export_priors_lerobot(cfg.store, cfg.prior, cfg.out, mapping, progress=True)
     print(json.dumps({"parquet": str(path), "info": str(path.with_suffix(".json"))}))
     return 0
-
-
-def iter_lerobot(root: str | Path, **kwargs: Any) -> Iterator[Episode]:
-    """Episodes of a LeRobot v3.0 data set, read on the fly (no store); kwargs as in read_episode."""
-    ds = LeRobotV3Dataset(root)
-    try:
-        for e in ds.episodes:
-            yield ds.read_episode(e, **kwargs)
-    finally:
-        ds.close()
