@@ -60,7 +60,8 @@ def test_gaze_point_lands_in_the_patch_holding_that_pixel(geom, u, v):
     # stay away from patch borders, where a tiny Gaussian straddles two patches
     fu, fv = (p[0] * gw) % 1, (p[1] * gh) % 1
     assume(0.2 < fu < 0.8 and 0.2 < fv < 0.8)
-    heat, ok = heatmaps_from_points(torch.tensor([[u, v]]), (400, 400), 0.3)
+    # a single hot cell of a fine grid: its extent (< 1 px after any resize here) stays inside the patch
+    heat, ok = heatmaps_from_points(torch.tensor([[u, v]]), (2000, 2000), 0.3, truncate=0)
     dist, valid = patch_distribution(heat, geom, ok)
     assert valid.all()
     assert int(dist[0].argmax()) == idx
