@@ -235,7 +235,7 @@ def _versions() -> dict[str, str]:
 
 
 # ----- workers ----------------------------------------------------------------------------------------------
-_WORKER_ENVS: dict[str, Any] = {}  # one environment per task in each worker process
+_WORKER_ENVS: dict[tuple, Any] = {}  # environments kept per process, by task and render settings
 
 
 def _worker_init() -> None:
@@ -246,8 +246,12 @@ def _worker_init() -> None:
 def _env_for(task: str, cfg: CollectConfig) -> Any:
     from gazevla.envs.metaworld import MetaWorldEnv
 
-    if task not in _WORKER_ENVS:
-        _WORKER_ENVS[task] = MetaWorldEnv(
+    key = (task, cfg.cameras, cfg.image_size, cfg.max_steps, cfg.goal_marker_radius, cfg.gl_backend)
+    if key not in _WORKER_ENVS:
+        if len(_WORKER_ENVS) >= 8:  # a long-lived process (tests, notebooks) does not pile environments up
+            oldest = next(iter(_WORKER_ENVS))
+            _WORKER_ENVS.pop(oldest).close()
+        _WORKER_ENVS[key] = MetaWorldEnv(
             task,
             cameras=cfg.cameras,
             image_size=cfg.image_size,
@@ -255,7 +259,7 @@ def _env_for(task: str, cfg: CollectConfig) -> Any:
             goal_marker_radius=cfg.goal_marker_radius,
             gl_backend=cfg.gl_backend or None,
         )
-    return _WORKER_ENVS[task]
+    return _WORKER_ENVS[key]
 
 
 def _run_job(cfg: CollectConfig, task: str, seed: int, index: int) -> dict[str, Any]:

@@ -1,0 +1,196 @@
+"""Demonstration collection: what it writes, resuming, failures, the command line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gazevla.envs.collect import CollectConfig, _split_lists, collect, episode_index, main
+
+
+def test_comma_lists_are_split():
+    assert _split_lists(["--tasks", "a,b", "--episodes", "2"]) == ["--tasks", "a", "b", "--episodes", "2"]
+    assert _split_lists(["--tasks=a,b", "--cameras", "c1", "c2,c3"]) == [
+        "--tasks",
+        "a",
+        "b",
+        "--cameras",
+        "c1",
+        "c2",
+        "c3",
+    ]
+    assert _split_lists(["--out", "x,y"]) == ["--out", "x,y"]
+
+
+def test_indices_are_a_function_of_task_slot_and_seed():
+    assert episode_index(0, 0, 0) == 0
+    assert episode_index(1, 5, 0) == 1005
+    assert episode_index(2, 103, 100) == 2003
+
+
+@pytest.fixture(scope="module")
+def collected(tmp_path_factory, gl_backend):
+    out = tmp_path_factory.mktemp("demos")
+    cfg = CollectConfig(
+        out=out,
+        tasks=("reach-v3", "pick-place-v3"),
+        episodes=2,
+        image_size=48,
+        cameras=("corner2", "topview"),
+        max_steps=150,
+        workers=1,
+        progress=False,
+        gl_backend=gl_backend,
+    )
+    return cfg, collect(cfg)
+
+
+@pytest.mark.sim
+def test_collection_writes_what_it_claims(collected):
+    from gazevla.data.store import EpisodeStore
+
+    cfg, report = collected
+    assert report.complete and report.new_episodes == 4
+    store = EpisodeStore(cfg.out)
+    assert store.indices() == [0, 1, 1000, 1001]
+    assert report.tasks["pick-place-v3"]["indices"] == [1000, 1001]
+    total = 0
+    for i in store.indices():
+        ep = store.read(i)
+        T = ep.length
+        total += T
+        assert ep.task == ("reach-v3" if i < 1000 else "pick-place-v3")
+        assert ep.meta["seed"] == i % 1000 and ep.meta["success"] and ep.meta["fps"] == 80.0
+        assert ep.meta["env"] == "metaworld" and ep.meta["env_name"] == ep.task
+        assert ep.instruction.endswith(".")
+        assert ep.frames["corner2"].shape == (T, 48, 48, 3) and ep.frames["topview"].shape == (T, 48, 48, 3)
+        assert ep.state.shape == (T, 4) and ep.action.shape == (T, 4)
+        for name in ("obj", "goal", "hand"):
+            assert ep.extras[f"{name}_pos"].shape == (T, 3)
+            for cam in ("corner2", "topview"):
+                uv = ep.extras[f"{name}_uv.{cam}"]
+                assert uv.shape == (T, 2) and np.isfinite(uv).all()
+        for name in ("contact", "grasp", "success"):
+            assert ep.extras[name].shape == (T,) and ep.extras[name].dtype == bool
+        assert ep.extras["success"][-1] and not ep.extras["success"][:-1].any()
+        np.testing.assert_allclose(
+            ep.state[:, :3], ep.extras["hand_pos"], atol=0.05
+        )  # hand body vs pad centre
+        assert ep.meta["camera_geometry"]["corner2"]["rot180"] is True
+    assert total == report.new_frames
+    pp = store.read(1000)
+    assert pp.extras["grasp"].any() and pp.extras["contact"].any()  # the pick-place expert grasps the puck
+    assert not store.read(0).extras["contact"].any()  # reaching touches nothing
+    on_disk = json.loads((Path(cfg.out) / "collect" / "report.json").read_text())
+    assert on_disk["new_episodes"] == 4 and on_disk["complete"]
+
+
+@pytest.mark.sim
+def test_rerun_resumes_without_touching_episodes(collected):
+    cfg, _ = collected
+    ep_dir = Path(cfg.out) / "episodes" / "ep_001000"
+    before = (ep_dir / "meta.json").stat().st_mtime_ns
+    report = collect(cfg)
+    assert report.complete and report.new_episodes == 0
+    assert report.tasks["reach-v3"]["resumed"] == 2
+    assert (ep_dir / "meta.json").stat().st_mtime_ns == before
+    # More episodes: only the missing ones are collected, at the indices that (task, seed) determine.
+    from dataclasses import replace
+
+    from gazevla.data.store import EpisodeStore
+
+    report = collect(replace(cfg, tasks=("reach-v3",), episodes=3))
+    assert report.new_episodes == 1 and 2 in EpisodeStore(cfg.out)
+
+
+@pytest.mark.sim
+def test_mismatched_rerun_is_refused(collected):
+    from dataclasses import replace
+
+    cfg, _ = collected
+    with pytest.raises(SystemExit, match="holds task"):
+        collect(replace(cfg, tasks=("pick-place-v3",)))
+    with pytest.raises(SystemExit, match="other settings"):
+        collect(replace(cfg, image_size=32))
+
+
+@pytest.mark.sim
+def test_failures_are_reported_not_stored(tmp_path, gl_backend):
+    from gazevla.data.store import EpisodeStore
+
+    cfg = CollectConfig(
+        out=tmp_path,
+        tasks=("pick-place-v3",),
+        episodes=1,
+        max_failures=1,
+        image_size=32,
+        max_steps=5,
+        workers=1,
+        progress=False,
+        gl_backend=gl_backend,
+    )
+    report = collect(cfg)
+    assert not report.complete
+    assert set(report.tasks["pick-place-v3"]["failed_seeds"]) == {"0", "1"}
+    assert len(EpisodeStore(tmp_path)) == 0
+    lines = (tmp_path / "collect" / "attempts.jsonl").read_text().splitlines()
+    assert [json.loads(x)["success"] for x in lines] == [False, False]
+    # a rerun with the same settings does not retry the seeds that failed
+    again = collect(cfg)
+    assert "skipped" in again.tasks["pick-place-v3"]["failed_seeds"]["0"]
+    assert len((tmp_path / "collect" / "attempts.jsonl").read_text().splitlines()) == 2
+
+
+@pytest.mark.sim
+def test_command_line_with_comma_separated_tasks(tmp_path, gl_backend, capsys):
+    rc = main(
+        [
+            "--preset",
+            "smoke",
+            "--tasks",
+            "reach-v3,button-press-topdown-v3",
+            "--episodes",
+            "1",
+            "--out",
+            str(tmp_path),
+            "--workers",
+            "1",
+            "--no-progress",
+            "--gl-backend",
+            gl_backend,
+        ]
+    )
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "reach-v3" in out and "button-press-topdown-v3" in out and "1/1 episodes" in out
+    cfg = json.loads((tmp_path / "collect" / "config.json").read_text())
+    assert cfg["tasks"] == ["reach-v3", "button-press-topdown-v3"] and cfg["image_size"] == 64
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_parallel_workers_give_the_same_episodes(tmp_path, gl_backend):
+    """Two worker processes write the same episodes (bit for bit) as one process."""
+    from gazevla.data.store import EpisodeStore
+
+    common = dict(
+        tasks=("reach-v3",),
+        episodes=2,
+        image_size=32,
+        max_steps=150,
+        progress=False,
+        gl_backend=gl_backend,
+        action_noise=0.1,
+    )
+    r1 = collect(CollectConfig(out=tmp_path / "one", workers=1, **common))
+    r2 = collect(CollectConfig(out=tmp_path / "two", workers=2, **common))
+    assert r1.complete and r2.complete
+    a, b = EpisodeStore(tmp_path / "one"), EpisodeStore(tmp_path / "two")
+    assert a.indices() == b.indices()
+    for i in a.indices():
+        ea, eb = a.read(i), b.read(i)
+        np.testing.assert_array_equal(ea.frames["corner2"], eb.frames["corner2"])
+        np.testing.assert_array_equal(ea.action, eb.action)
