@@ -76,9 +76,16 @@ def test_seeds_fix_setups_as_metaworld_mt1_does(env):
 
 def test_same_seed_same_images(env):
     o1, _ = env.reset(seed=2)
+    kept = {cam: img.copy() for cam, img in o1["images"].items()}
     o2, _ = env.reset(seed=2)
     for cam in env.cameras:
         np.testing.assert_array_equal(o1["images"][cam], o2["images"][cam])
+    for _ in range(5):
+        o3, *_ = env.step(np.array([1.0, 0, 0, 0], dtype=np.float32))
+    for cam in env.cameras:  # observations are copies: later renders do not change them
+        np.testing.assert_array_equal(o1["images"][cam], kept[cam])
+        assert o1["images"][cam].flags.c_contiguous
+    assert not np.array_equal(o3["images"]["corner2"], kept["corner2"])
 
 
 def test_expert_succeeds_and_the_env_says_so(gl_backend):

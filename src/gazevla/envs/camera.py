@@ -64,8 +64,10 @@ class CameraGeometry:
         return uv
 
     def orient(self, upright_raw: np.ndarray) -> np.ndarray:
-        """Apply this camera's orientation to an image (..., H, W, C) rendered top row first."""
-        return np.ascontiguousarray(upright_raw[..., ::-1, ::-1, :]) if self.rot180 else upright_raw
+        """The policy's image: a new contiguous copy of an image (..., H, W, C) rendered top row first, rotated
+        by 180 degrees when this camera needs it."""
+        x = upright_raw[..., ::-1, ::-1, :] if self.rot180 else upright_raw
+        return np.array(x, order="C", copy=True)
 
     def uv_to_pixel(self, uv: np.ndarray) -> np.ndarray:
         """Normalised (u, v) -> integer pixel indices (row, col) (..., 2), clipped to the image."""

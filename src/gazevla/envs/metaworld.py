@@ -315,7 +315,7 @@ class MetaWorldEnv(gym.Env):
         noise = self._perturbation.noise
         out = {}
         for cam in self.cameras:
-            img = self._renderer.render(vd, self._cam_ids[cam], rot180=self._geometry[cam].rot180)
+            img = self._geometry[cam].orient(self._renderer.render(vd, self._cam_ids[cam]))
             out[cam] = img if noise.is_identity else noise.apply(img, self._noise_rng)
         return out
 

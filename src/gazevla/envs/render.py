@@ -192,11 +192,10 @@ class FastRenderer:
         mj.mjr_readPixels(self._buf, None, self._rect, self._mjr)
         return self._buf
 
-    def render(self, data: Any, camera_id: int, rot180: bool = False) -> np.ndarray:
-        """A new uint8 (H, W, 3) image, top row first; rotated 180 degrees when `rot180`."""
-        raw = self.render_raw(data, camera_id)
-        # raw is bottom-up: flipud makes it upright; a 180-degree rotation of that is a left-right flip of raw.
-        return np.ascontiguousarray(raw[:, ::-1] if rot180 else raw[::-1])
+    def render(self, data: Any, camera_id: int) -> np.ndarray:
+        """A view of the frame top row first, as the camera sees it (valid until the next render; orient or
+        copy it to keep it: `CameraGeometry.orient` does both)."""
+        return self.render_raw(data, camera_id)[::-1]
 
     def close(self) -> None:
         if getattr(self, "_ctx", None) is not None:
