@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gazevla.envs.collect import CollectConfig, _split_lists, collect, episode_index, main
+from gazevla.envs.collect import CollectConfig, CollectError, _split_lists, collect, episode_index, main
 
 
 def test_comma_lists_are_split():
@@ -111,10 +111,12 @@ def test_mismatched_rerun_is_refused(collected):
     from dataclasses import replace
 
     cfg, _ = collected
-    with pytest.raises(SystemExit, match="holds task"):
+    with pytest.raises(CollectError, match="holds task"):
         collect(replace(cfg, tasks=("pick-place-v3",)))
-    with pytest.raises(SystemExit, match="other settings"):
+    with pytest.raises(CollectError, match="other settings"):
         collect(replace(cfg, image_size=32))
+    with pytest.raises(CollectError, match="unknown Meta-World task"):
+        collect(replace(cfg, tasks=("reach-v3", "juggle-v3")))
 
 
 @pytest.mark.sim

@@ -29,6 +29,7 @@ _EXPORTS = {
     "Expert": "gazevla.envs.experts",
     "CollectConfig": "gazevla.envs.collect",
     "collect": "gazevla.envs.collect",
+    "CollectError": "gazevla.envs.collect",
 }
 
 __all__ = list(_EXPORTS)

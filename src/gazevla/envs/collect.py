@@ -50,6 +50,10 @@ INDEX_STRIDE = 1000  # episode indices per task slot
 MAX_INDEX = 999_999  # the store names episodes with 6 digits
 
 
+class CollectError(ValueError):
+    """A collection that cannot run as configured (unknown task, a store made with other settings, ...)."""
+
+
 @dataclass(frozen=True)
 class CollectConfig:
     """Expert demonstrations in Meta-World, written to an episode store."""
@@ -327,21 +331,21 @@ def _validate(cfg: CollectConfig) -> None:
     known = set(meta_world_tasks())
     bad = [t for t in cfg.tasks if t not in known]
     if bad:
-        raise SystemExit(f"unknown Meta-World task(s) {bad}; v3 tasks: {', '.join(sorted(known))}")
+        raise CollectError(f"unknown Meta-World task(s) {bad}; v3 tasks: {', '.join(sorted(known))}")
     if not cfg.tasks:
-        raise SystemExit("no tasks given")
+        raise CollectError("no tasks given")
     if len(set(cfg.tasks)) != len(cfg.tasks):
-        raise SystemExit(f"duplicate tasks in {cfg.tasks}")
+        raise CollectError(f"duplicate tasks in {cfg.tasks}")
     if cfg.episodes < 1 or cfg.max_failures < 0 or cfg.episodes + cfg.max_failures > INDEX_STRIDE:
-        raise SystemExit(f"need 1 <= episodes and episodes + max_failures <= {INDEX_STRIDE}")
+        raise CollectError(f"need 1 <= episodes and episodes + max_failures <= {INDEX_STRIDE}")
     if len(cfg.tasks) * INDEX_STRIDE - 1 > MAX_INDEX:
-        raise SystemExit(f"at most {(MAX_INDEX + 1) // INDEX_STRIDE} tasks per store")
+        raise CollectError(f"at most {(MAX_INDEX + 1) // INDEX_STRIDE} tasks per store")
     if cfg.seed_base < 0:
-        raise SystemExit("seed_base must be >= 0")
+        raise CollectError("seed_base must be >= 0")
     if not 1 <= cfg.max_steps <= MAX_PATH_LENGTH:
-        raise SystemExit(f"max_steps must be in [1, {MAX_PATH_LENGTH}]")
+        raise CollectError(f"max_steps must be in [1, {MAX_PATH_LENGTH}]")
     if cfg.image_size < 8 or not cfg.cameras:
-        raise SystemExit("need at least one camera and image_size >= 8")
+        raise CollectError("need at least one camera and image_size >= 8")
 
 
 def collect(cfg: CollectConfig) -> CollectReport:
@@ -376,13 +380,13 @@ def collect(cfg: CollectConfig) -> CollectReport:
             if index in store:
                 meta = store.meta(index)
                 if meta.get("task") != tp.task or meta.get("seed") != seed:
-                    raise SystemExit(
+                    raise CollectError(
                         f"{cfg.out}: episode {index} holds task {meta.get('task')!r} seed {meta.get('seed')}, but "
                         f"this collection would put {tp.task!r} seed {seed} there; use the same tasks and seed_base "
                         "as before, or a new --out"
                     )
                 if meta.get("collect_fingerprint") != fp:
-                    raise SystemExit(
+                    raise CollectError(
                         f"{cfg.out}: episode {index} was collected with other settings ({', '.join(_FINGERPRINT_FIELDS)}); "
                         "use the same settings to resume, or a new --out"
                     )
@@ -494,7 +498,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     argv = list(sys.argv[1:] if argv is None else argv)
     cfg = parse(PRESETS, _split_lists(argv), prog="gazevla collect", description=__doc__.split("\n\n")[0])
-    report = collect(cfg)
+    try:
+        report = collect(cfg)
+    except CollectError as e:
+        print(f"gazevla collect: {e}", file=sys.stderr)
+        return 2
     d = report.to_dict()
     print(
         f"collected {report.new_episodes} new episodes ({report.new_frames} frames) in {report.seconds:.1f} s "
