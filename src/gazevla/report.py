@@ -261,3 +261,49 @@ def machine_summary() -> dict[str, Any]:
         "python": platform.python_version(),
         "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
     }
+
+
+def readme_block(report: dict[str, Any], figure: str) -> str:
+    """The README's results block for one experiment report (everything from the report itself)."""
+    t = report["success"]
+    conds = list(next(iter(t.values())))
+    lines = [
+        f"Latest `{report['preset']}` run: {report['date']}, {report['machine']['summary']}, wall time "
+        f"{report['wall_time_s'] / 60:.1f} min (`make demo`). Tasks: {', '.join(report['tasks'])}; "
+        f"{report['train']['steps']} training steps per arm, seeds {report['train']['seeds']}; "
+        f"{report['eval']['episodes']} unseen setups per task and condition.",
+        "",
+        "| arm | " + " | ".join(conds) + " |",
+        "|---|" + "---|" * len(conds),
+        *[f"| {a} | " + " | ".join(fmt_cell(t[a][c]) for c in conds) + " |" for a in t],
+        "",
+    ]
+    if report.get("alignment"):
+        keys = [k for k in ("gaze_kl", "gaze_cc", "gaze_auc_judd", "object_mass") if any(k in v for v in report["alignment"].values())]
+        lines += ["Attention vs gaze on held-out frames:", "", "| arm | " + " | ".join(keys) + " |", "|---|" + "---|" * len(keys)]
+        lines += [f"| {a} | " + " | ".join(f"{v[k]:.3f}" if k in v else "-" for k in keys) + " |" for a, v in report["alignment"].items()]
+        lines.append("")
+    lines += [*report["verdict"], "", f"![attention]({figure})", ""]
+    return "\n".join(lines)
+
+
+def update_readme(readme: Path, run_dir: Path, figure_dir: Path, marker: str = "quick-results") -> None:
+    """Replace the README's block between `<!-- {marker}:start -->` and `<!-- {marker}:end -->` with the
+    results of the experiment in `run_dir`, copying its attention figure into `figure_dir`."""
+    import json
+    import shutil
+
+    from gazevla.utils.io import atomic_write_text
+
+    report = json.loads((run_dir / "report.json").read_text())
+    figure_dir.mkdir(parents=True, exist_ok=True)
+    fig = figure_dir / f"{marker}-attention.png"
+    shutil.copyfile(run_dir / report["figures"]["attention"], fig)
+    start, end = f"<!-- {marker}:start -->", f"<!-- {marker}:end -->"
+    text = readme.read_text()
+    if start not in text or end not in text:
+        raise ValueError(f"{readme} has no {start} ... {end} block")
+    head, rest = text.split(start, 1)
+    _, tail = rest.split(end, 1)
+    block = readme_block(report, str(fig.relative_to(readme.parent)))
+    atomic_write_text(readme, f"{head}{start}\n{block}{end}{tail}")
