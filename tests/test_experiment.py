@@ -1,0 +1,32 @@
+"""The whole pipeline end to end at smoke size (real Meta-World rendering, real training and evaluation)."""
+
+import json
+
+import pytest
+
+from gazevla.experiment import STAGES, main
+
+pytestmark = pytest.mark.sim
+
+
+def test_smoke_experiment_end_to_end_and_resume(tmp_path, capsys):
+    out = tmp_path / "exp"
+    assert main(["--preset", "smoke", "--out", str(out)]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert set(report["success"]) == {"baseline", "gaze", "perturbed"}
+    for arm in report["success"].values():
+        assert set(arm) == {"clean", "dim:0.7"} and arm["clean"]["n"] == 2
+    assert set(report["alignment"]) == {"baseline", "gaze", "perturbed"}
+    assert "gaze_kl" in report["alignment"]["gaze"]
+    for fig in report["figures"].values():
+        assert (out / fig).stat().st_size > 1000
+    assert report["videos"] and all((out / v).exists() for v in report["videos"])
+    assert (out / "report.md").read_text().startswith("# gazevla experiment")
+    eval_info = json.loads((out / "eval" / "eval_info.json").read_text())
+    seeds = {(e["arm"], e["condition"]): sorted(x["seed"] for x in eval_info["episodes"] if (x["arm"], x["condition"]) == (e["arm"], e["condition"])) for e in eval_info["episodes"]}
+    assert len({tuple(v) for v in seeds.values()}) == 1  # every arm and condition on the same setups
+    markers = {s: (out / "stages" / f"{s}.json").stat().st_mtime_ns for s in STAGES}
+    capsys.readouterr()
+    assert main(["--preset", "smoke", "--out", str(out)]) == 0  # rerun: finished stages are skipped
+    for s in STAGES[:-1]:
+        assert (out / "stages" / f"{s}.json").stat().st_mtime_ns == markers[s]

@@ -1,0 +1,77 @@
+import json
+
+import pytest
+
+from gazevla.evaluate import format_table, summarize
+from gazevla.report import (
+    convergence,
+    markdown,
+    paired_tests,
+    readme_block,
+    success_table,
+    update_readme,
+    verdict,
+)
+
+
+def records(arm, successes, condition="clean", task="reach-v3", start=1000):
+    return [{"arm": arm, "task": task, "condition": condition, "seed": start + i, "success": bool(s), "length": 50} for i, s in enumerate(successes)]
+
+
+def test_success_table_pools_seeds_and_reports_drops():
+    recs = records("baseline@s0", [1, 0, 1, 0]) + records("baseline@s1", [1, 1, 0, 0]) + records("baseline@s0", [0, 0, 1, 0], "dim:0.7")
+    t = success_table(recs)
+    assert t["baseline"]["clean"]["successes"] == 4 and t["baseline"]["clean"]["n"] == 8
+    assert t["baseline"]["dim:0.7"]["drop_from_clean"] == pytest.approx(0.5 - 0.25)
+    lo, hi = t["baseline"]["clean"]["ci95"]
+    assert lo < 0.5 < hi
+
+
+def test_paired_tests_pair_by_seed_and_task():
+    recs = records("baseline@s0", [0] * 10) + records("gaze@s0", [1] * 10)
+    p = paired_tests(recs)["gaze vs baseline | clean"]
+    assert p["pairs"] == 10 and p["gaze_only"] == 10 and p["baseline_only"] == 0
+    assert p["mcnemar_p"] < 0.01
+    v = verdict(success_table(recs))
+    assert "do not overlap" in v[0] and "better" in v[0]
+    v = verdict(success_table(records("baseline@s0", [1, 0]) + records("gaze@s0", [0, 1])))
+    assert "overlap, so this budget does not decide" in v[0]
+
+
+def test_convergence_steps_to_threshold_and_baseline_final():
+    conv = convergence({"baseline": {100: (1, 10), 200: (4, 10)}, "gaze": {100: (5, 10), 200: (6, 10)}}, threshold=0.5)
+    assert conv["arms"]["gaze"]["steps_to_threshold"] == 100 and conv["arms"]["baseline"]["steps_to_threshold"] is None
+    assert conv["arms"]["gaze"]["steps_to_baseline_final"] == 100
+
+
+def test_eval_summary_and_table():
+    recs = records("a", [1, 0]) + records("b", [1, 1])
+    s = summarize(recs)
+    assert s["arms"]["b"]["clean"]["pooled"]["successes"] == 2
+    assert "a vs b | clean" in s["paired"]
+    assert "| a |" in format_table(s)
+
+
+def test_markdown_and_readme_block(tmp_path):
+    recs = records("baseline@s0", [1, 0]) + records("gaze@s0", [1, 1])
+    success = success_table(recs)
+    report = {
+        "preset": "test", "date": "today", "machine": {"summary": "a test machine"}, "wall_time_s": 60.0,
+        "stage_times_s": {"train": 1.0}, "tasks": ["reach-v3"], "demos": {"episodes": 2, "frames": 100},
+        "train": {"steps": 10, "batch_size": 4, "seeds": [0], "gaze_weight": 0.1, "gaze_layers": [-1]},
+        "eval": {"episodes": 2, "seeds": "1000..1001"}, "success": success, "paired": paired_tests(recs), "verdict": verdict(success),
+        "convergence": None, "alignment": {"gaze": {"gaze_kl": 0.1, "object_mass": 0.5}}, "figures": {"attention": "figures/attention.png"},
+    }
+    md = markdown(report)
+    assert "| gaze | 2/2 = 1.00" in md and "gaze vs baseline | clean" in md
+    run = tmp_path / "run"
+    (run / "figures").mkdir(parents=True)
+    (run / "figures" / "attention.png").write_bytes(b"png")
+    (run / "report.json").write_text(json.dumps(report))
+    readme = tmp_path / "README.md"
+    readme.write_text("# x\n<!-- quick-results:start -->\nold\n<!-- quick-results:end -->\nend\n")
+    update_readme(readme, run, tmp_path / "docs")
+    text = readme.read_text()
+    assert "old" not in text and "| gaze | 2/2 = 1.00" in text and text.endswith("end\n")
+    assert (tmp_path / "docs" / "quick-results-attention.png").exists()
+    assert "attention" in readme_block(report, "f.png")
