@@ -159,6 +159,8 @@ def _observe(
     nq = qpos.shape[1]
     q_sel = query.gather(2, qpos[:, None, :, None].expand(B, H, nq, d))
     m = _full_mask(mask, module, base, query, key, kwargs)
+    if m is not None and m.shape[-1] > key.shape[2]:  # masks sized for a longer (static) cache
+        m = m[..., : key.shape[2]]
     if m is not None and m.shape[-2] != 1:
         m = m.expand(B, *m.shape[1:]) if m.shape[0] == 1 else m
         m = m.gather(2, qpos[:, None, :, None].expand(B, m.shape[1], nq, m.shape[-1]))

@@ -1,0 +1,71 @@
+"""Shared fixtures of the LeRobot lane (Python 3.12 venv with lerobot 0.6.1 and the gazevla plugin)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("lerobot", reason="the LeRobot lane needs lerobot (scripts/lerobot_lane.sh)")
+pytest.importorskip("lerobot_policy_gazevla", reason="the gazevla LeRobot plugin is not installed")
+
+FIXTURE = Path(os.environ.get("GAZEVLA_FIXTURES", "/work/shared/fixtures")) / "lerobot_v3_tiny"
+
+
+@pytest.fixture(scope="session")
+def dataset_root() -> Path:
+    if not (FIXTURE / "meta" / "info.json").exists():
+        pytest.skip(f"the LeRobot v3 fixture is missing at {FIXTURE}")
+    return FIXTURE
+
+
+@pytest.fixture(scope="session")
+def tiny_vlm(tmp_path_factory) -> Path:
+    from lerobot_policy_gazevla.testing import make_tiny_smolvlm
+
+    return make_tiny_smolvlm(tmp_path_factory.mktemp("tiny_smolvlm"))
+
+
+@pytest.fixture(scope="session")
+def dataset(dataset_root):
+    from lerobot.datasets import LeRobotDataset
+
+    return LeRobotDataset(
+        "local/lerobot_v3_tiny",
+        root=dataset_root,
+        delta_timestamps={"action": [i / 10 for i in range(5)]},
+        video_backend="pyav",
+    )
+
+
+def make_config(tiny_vlm, **kw):
+    from lerobot_policy_gazevla.configuration_smolvla_gaze import SmolVLAGazeConfig
+
+    args = dict(
+        vlm_model_name=str(tiny_vlm),
+        load_vlm_weights=False,
+        resize_imgs_with_padding=(64, 64),
+        chunk_size=5,
+        n_action_steps=5,
+        num_vlm_layers=4,
+        device="cpu",
+        push_to_hub=False,
+        gaze_weight=1.0,
+        gaze_camera="observation.images.front",
+    )
+    args.update(kw)
+    return SmolVLAGazeConfig(**args)
+
+
+@pytest.fixture
+def policy_and_batch(tiny_vlm, dataset):
+    import torch
+    from lerobot.policies import make_policy, make_pre_post_processors
+
+    torch.manual_seed(0)
+    cfg = make_config(tiny_vlm)
+    policy = make_policy(cfg, ds_meta=dataset.meta)
+    pre, _ = make_pre_post_processors(cfg, dataset_stats=dataset.meta.stats)
+    raw = torch.utils.data.default_collate([dataset[i] for i in range(4)])
+    return policy, pre(raw), raw
