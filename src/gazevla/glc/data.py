@@ -149,8 +149,9 @@ def episode_gaze_points(
 
     Args:
         source: `"recorded"` reads `extra.<key>.<camera>` (NaN = lost) and `extra.gaze_valid.<camera>`;
-            anything else is a gaze source name or object: its `points(episode, camera)` if it has one,
-            otherwise the peak cell of its `peak_size` maps.
+            anything else is a gaze source name or object: its `points(episode, camera)` or
+            `trace(episode, camera)` (`.uv`, `.valid`; the visuomotor source) if it has one, otherwise the
+            peak cell of its `peak_size` maps.
     """
     T = episode.length
     if source == "recorded":
@@ -167,8 +168,12 @@ def episode_gaze_points(
             from gazevla.gaze.sources import make_gaze_source
 
             source = make_gaze_source(source)
-        if hasattr(source, "points"):
-            pts, valid = source.points(episode, camera)
+        if hasattr(source, "points") or hasattr(source, "trace"):
+            if hasattr(source, "points"):
+                pts, valid = source.points(episode, camera)
+            else:  # the visuomotor source: a GazeTrace with uv (T, 2) and valid (T,)
+                trace = source.trace(episode, camera)
+                pts, valid = trace.uv, trace.valid
             pts = np.asarray(pts, dtype=np.float32).reshape(T, 2)
             valid = np.asarray(valid).astype(bool).reshape(T)
         else:
