@@ -470,7 +470,6 @@ def train(cfg: TrainConfig, callbacks: Sequence[Callback] = ()) -> dict[str, Any
             terms.update(
                 {
                     "loss/gaze_kl": float(kl.detach()),
-                    "gaze/weight": w,
                     "gaze/patch_mass": float(probe.patch_mass().mean()),
                     **ginfo,
                 }
@@ -483,6 +482,7 @@ def train(cfg: TrainConfig, callbacks: Sequence[Callback] = ()) -> dict[str, Any
             acc.clip_grad_norm_(model.parameters(), cfg.optim.grad_clip) if cfg.optim.grad_clip > 0 else None
         )
         opt.step()
+        cur_lr = sched.get_last_lr()[0]  # the LR this update used
         sched.step()
         if ema is not None:
             ema.update(policy)
@@ -500,7 +500,9 @@ def train(cfg: TrainConfig, callbacks: Sequence[Callback] = ()) -> dict[str, Any
         is_log = done % cfg.log_every == 0 or done == stop
         is_eval = done % cfg.eval_every == 0 or done == stop
         if is_log or is_eval:
-            record = {"step": done, "epoch": round(sampler.epoch_of(done), 4), "lr": sched.get_last_lr()[0]}
+            record = {"step": done, "epoch": round(sampler.epoch_of(done), 4), "lr": cur_lr}
+            if gaze_on:
+                record["gaze/weight"] = w  # the current weight (not an interval mean)
             if n_acc:
                 means = [acc_sums[k] / n_acc for k in sorted(acc_sums)]
                 if world > 1:  # average the interval means over processes
@@ -545,6 +547,8 @@ def train(cfg: TrainConfig, callbacks: Sequence[Callback] = ()) -> dict[str, Any
     logger.close()
     acc.wait_for_everyone()
     acc.end_training()
+    if last_ckpt is None and ckpt is not None and start >= stop:
+        last_ckpt = ckpt  # nothing left to train: the resumed checkpoint is the result
     return {
         "run_dir": run_dir,
         "step": max(stop, start),

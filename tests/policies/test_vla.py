@@ -60,7 +60,7 @@ def test_registry_and_presets():
     t = tiny().resolve(cameras=("corner2",), camera_hw=((96, 96),), state_dim=4, action_dim=4, vocab_size=40)
     p = VLAPolicy(t, Tokenizer("words", [f"w{i}" for i in range(38)], t.max_text_len))
     assert 0.5e6 <= p.num_parameters() <= 1.0e6
-    assert t.grid_hw == (8, 8) and p.n_tokens == 64 + 16 + 1 + 4
+    assert t.grid_hw == (8, 8) and p.n_tokens == 64 + 12 + 1 + 4
     assert paper().grid_hw == (16, 16)
     with pytest.raises(ValueError, match="not resolved"):
         VLAPolicy(tiny(), Tokenizer("bytes"))
@@ -256,7 +256,7 @@ def test_batched_observations():
 def test_tokenizer():
     tok = Tokenizer.build(["Reach the goal", "press the button"], max_len=4)
     ids, mask = tok(["reach the goal!", "push"])
-    assert ids.shape == (2, 4) and mask.tolist() == [[True, True, True, True], [True, False, False, False]]
+    assert ids.shape == (2, 4) and mask.tolist() == [[True, True, True, False], [True, False, False, False]]
     assert ids[1, 0] == 1 and tok.unknown_words("push") == ["push"]
     assert Tokenizer.from_dict(tok.to_dict()).vocab == tok.vocab
     b = Tokenizer("bytes", max_len=8)

@@ -223,7 +223,9 @@ class EpisodeDataset(torch.utils.data.Dataset):
 
     def _frames(self, cam: str, rows: Tensor) -> Tensor:
         if self.frames is not None:
-            return self.frames[cam][rows]
+            return torch.index_select(
+                self.frames[cam], 0, rows
+            )  # much faster than advanced indexing for uint8
         assert self._mmaps is not None
         e, t = self.ep_of[rows].tolist(), self.t_of[rows].tolist()
         return torch.from_numpy(np.stack([np.asarray(self._mmaps[cam][ei][ti]) for ei, ti in zip(e, t)]))
@@ -240,8 +242,8 @@ class EpisodeDataset(torch.utils.data.Dataset):
         chunk_rows = rows[:, None] + torch.minimum(k[None], (T - 1 - t)[:, None])  # repeat the last action
         out: dict[str, Tensor] = {f"image.{c}": self._frames(c, rows) for c in self.cameras}
         out.update(
-            state=self.state[rows],
-            action=self.action[chunk_rows],
+            state=torch.index_select(self.state, 0, rows),
+            action=torch.index_select(self.action, 0, chunk_rows.flatten()).view(*chunk_rows.shape, -1),
             action_pad=pad,
             text_ids=self.text_ids[ep],
             text_mask=self.text_mask[ep],

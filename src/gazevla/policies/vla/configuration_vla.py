@@ -35,7 +35,7 @@ class VLAConfig:
     # ----- language -------------------------------------------------------------------------------------
     tokenizer: Literal["words", "bytes"] = "words"
     """words: a vocabulary built from the training instructions; bytes: UTF-8 bytes (any text)"""
-    max_text_len: int = 16
+    max_text_len: int = 12
     vocab_size: int = 0
     """filled from the tokenizer"""
     # ----- transformer ----------------------------------------------------------------------------------

@@ -29,6 +29,7 @@ A action dim. Images enter as stored uint8 frames (B, H_img, W_img, 3).
 from __future__ import annotations
 
 import json
+import logging
 import math
 from collections import deque
 from collections.abc import Mapping, Sequence
@@ -46,6 +47,8 @@ from gazevla.patches import PatchGeometry
 from gazevla.policies.vla.configuration_vla import VLAConfig
 from gazevla.policies.vla.processor_vla import Tokenizer, random_shift, to_input_images
 from gazevla.utils.io import atomic_dir
+
+log = logging.getLogger(__name__)
 
 MODEL_FILE, CONFIG_FILE, TOKENIZER_FILE = "model.safetensors", "config.json", "tokenizer.json"
 
@@ -418,6 +421,11 @@ class VLAPolicy(nn.Module):
         if len(texts) != B:
             raise ValueError(f"{len(texts)} instructions for a batch of {B} observations")
         if texts not in self._text_cache:
+            unknown = sorted({w for t in texts for w in self.tokenizer.unknown_words(t)})
+            if unknown:
+                log.warning(
+                    "instruction words unknown to the policy's vocabulary (mapped to <unk>): %s", unknown
+                )
             self._text_cache[texts] = self.tokenizer(list(texts))
         batch["text_ids"], batch["text_mask"] = self._text_cache[texts]
         return batch, batched

@@ -21,7 +21,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 PAD, UNK = "<pad>", "<unk>"
-_WORD = re.compile(r"[a-z0-9]+|[^\sa-z0-9]")
+_WORD = re.compile(r"[a-z0-9]+")  # lower-cased words and numbers; punctuation is dropped
 
 
 class Tokenizer:
