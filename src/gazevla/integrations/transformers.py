@@ -417,6 +417,7 @@ class GazeRegularizer:
         # (B, n_cameras) bool: the camera's image is in the sample (PI0's camera slots), from the last forward
         self.present: Tensor | None = None
         self._hooks: list[Any] = []
+        self._signature: inspect.Signature | None = None
         self._cap_token = None
         self._capture: _Capture | None = None
 
@@ -572,7 +573,9 @@ class GazeRegularizer:
 
     def _pre_forward(self, module: nn.Module, args: tuple, kwargs: dict) -> None:
         try:
-            sig = inspect.signature(module.forward)
+            if self._signature is None:
+                self._signature = inspect.signature(module.forward)
+            sig = self._signature
             inputs = dict(sig.bind_partial(*args, **kwargs).arguments)
             for p in sig.parameters.values():
                 if p.kind is inspect.Parameter.VAR_KEYWORD:
