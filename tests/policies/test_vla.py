@@ -61,7 +61,11 @@ def test_registry_and_presets():
     p = VLAPolicy(t, Tokenizer("words", [f"w{i}" for i in range(38)], t.max_text_len))
     assert 0.5e6 <= p.num_parameters() <= 1.0e6
     assert t.grid_hw == (8, 8) and p.n_tokens == 64 + 12 + 1 + 4
-    assert paper().grid_hw == (16, 16)
+    pc = paper().resolve(
+        cameras=("corner2",), camera_hw=((224, 224),), state_dim=8, action_dim=7, vocab_size=50
+    )
+    big = VLAPolicy(pc, Tokenizer("words", [f"w{i}" for i in range(48)], pc.max_text_len))
+    assert pc.grid_hw == (16, 16) and 10e6 < big.num_parameters() < 100e6  # GPU-sized
     with pytest.raises(ValueError, match="not resolved"):
         VLAPolicy(tiny(), Tokenizer("bytes"))
     with pytest.raises(ValueError, match="divisible"):
