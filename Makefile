@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 EXTRAS ?= sim,viz,data,hf,dev
 PYTEST_ARGS ?= -n 2
 
-.PHONY: setup demo test lint bench clean
+.PHONY: setup demo test lint bench clean lerobot-lane
 
 setup:
 	@EXTRAS=$(EXTRAS) VENV=$(VENV) bash scripts/setup.sh
@@ -13,15 +13,19 @@ demo: setup
 	$(VENV)/bin/gazevla experiment --preset quick
 
 test: setup
-	$(VENV)/bin/ruff check src tests benchmarks examples
+	$(VENV)/bin/ruff check src tests benchmarks examples scripts lerobot_plugin tests_lerobot
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 lint: setup
-	$(VENV)/bin/ruff check src tests benchmarks examples
-	$(VENV)/bin/ruff format --check src tests benchmarks examples
+	$(VENV)/bin/ruff check src tests benchmarks examples scripts lerobot_plugin tests_lerobot
+	$(VENV)/bin/ruff format --check src tests benchmarks examples scripts lerobot_plugin tests_lerobot
 
 bench: setup
 	$(PY) benchmarks/run_all.py
+
+# LeRobot (Python >= 3.12) lane: its own cached venv in ~/.cache/gazevla; skipped where no Python 3.12 exists.
+lerobot-lane:
+	bash scripts/lerobot_lane.sh
 
 clean:
 	rm -rf $(VENV) .pytest_cache build *.egg-info src/*.egg-info

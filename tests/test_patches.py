@@ -24,7 +24,7 @@ def geometries(draw):
         patch_size=patch,
         src_hw=src,
         resize=draw(st.sampled_from(["stretch", "fit", "cover"])),
-        pad=draw(st.sampled_from(["topleft", "centre"])),
+        pad=draw(st.sampled_from(["topleft", "centre", "bottomright"])),
         orientation=draw(st.sampled_from(["none", "rot180", "hflip", "vflip"])),
         crop_box=crop,
         pixel_shuffle=shuffle,
@@ -68,7 +68,7 @@ def test_gaze_point_lands_in_the_patch_holding_that_pixel(geom, u, v):
 
 
 def test_known_geometry_letterbox_topleft():
-    # SmolVLA-style: a 100x200 frame fitted into 64x64 with top-left padding; 4x4 grid of 16 px patches.
+    # transformers PI0-style: a 100x200 frame fitted into 64x64, image at the top-left (padding bottom/right).
     geom = PatchGeometry(input_hw=(64, 64), patch_size=16, src_hw=(100, 200), resize="fit", pad="topleft")
     uv = geom.map_points(torch.tensor([[0.0, 0.0], [1.0, 1.0]]))
     torch.testing.assert_close(uv, torch.tensor([[0.0, 0.0], [1.0, 0.5]]))
@@ -77,6 +77,14 @@ def test_known_geometry_letterbox_topleft():
     grid = dist.reshape(4, 4)
     assert grid[2:].sum() == 0  # padding rows get nothing
     torch.testing.assert_close(grid[:2].sum(), torch.tensor(1.0))
+
+
+def test_known_geometry_letterbox_bottomright():
+    # LeRobot resize_with_pad (SmolVLA): padding on the top and left, the image at the bottom.
+    geom = PatchGeometry(input_hw=(64, 64), patch_size=16, src_hw=(100, 200), resize="fit", pad="bottomright")
+    torch.testing.assert_close(geom.map_points(torch.tensor([[0.0, 0.0]])), torch.tensor([[0.0, 0.5]]))
+    dist, _ = patch_distribution(torch.full((10, 20), 1 / 200), geom, eps=0)
+    assert dist.reshape(4, 4)[:2].sum() == 0
 
 
 def test_rot180_maps_top_left_to_bottom_right():

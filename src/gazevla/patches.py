@@ -3,9 +3,10 @@
 The geometry owns every step between a stored frame and the policy's input tokens, in this order:
   1. orientation: none | rot180 | hflip | vflip (e.g. LIBERO renders upside down);
   2. crop_box: an optional (u0, v0, u1, v1) window of the oriented frame, normalised;
-  3. resize to the policy's input (H_in, W_in): `stretch` (ignore aspect), `fit` (keep aspect, letterbox
-     with padding at the top-left or centred: SmolVLA pads top-left, pi0 centred), or `cover` (keep
-     aspect, scale to cover, centre crop);
+  3. resize to the policy's input (H_in, W_in): `stretch` (ignore aspect), `fit` (keep aspect, letterbox;
+     `pad` says where the image sits: `topleft` with padding bottom/right as transformers' PI0 processor,
+     `bottomright` with padding top/left as LeRobot's `resize_with_pad` for SmolVLA and pi0, or `centre`),
+     or `cover` (keep aspect, scale to cover, centre crop);
   4. patches of `patch_size` pixels, row-major; `pixel_shuffle` s merges s x s patches into one token.
 The same object maps gaze points, heatmaps and attention maps, so frames and gaze can never disagree.
 
@@ -36,7 +37,8 @@ class PatchGeometry:
     patch_size: int
     src_hw: tuple[int, int] | None = None  # stored frame size; needed for fit/cover (aspect ratio)
     resize: Literal["stretch", "fit", "cover"] = "stretch"
-    pad: Literal["topleft", "centre"] = "centre"
+    pad: Literal["topleft", "centre", "bottomright"] = "centre"
+    """where a `fit` image sits inside the padded input"""
     orientation: Orientation = "none"
     crop_box: tuple[float, float, float, float] | None = None
     pixel_shuffle: int = 1
@@ -51,6 +53,8 @@ class PatchGeometry:
                 f"input {H}x{W} px is not divisible into tokens of {self.patch_size} px patches x pixel_shuffle "
                 f"{self.pixel_shuffle} (= {step} px): the patch grid does not fit the image geometry"
             )
+        if self.pad not in ("topleft", "centre", "bottomright"):
+            raise ValueError(f"pad must be topleft, centre or bottomright, got {self.pad!r}")
         if self.resize != "stretch" and self.src_hw is None:
             raise ValueError(f"resize={self.resize!r} keeps the aspect ratio and needs src_hw (the stored frame size)")
         if self.crop_box is not None:
@@ -93,6 +97,8 @@ class PatchGeometry:
         size_px = content[axis] * s  # size of the content in input pixels along this axis
         if self.resize == "fit" and self.pad == "topleft":
             off = 0.0
+        elif self.resize == "fit" and self.pad == "bottomright":
+            off = n_in - size_px
         else:
             off = (n_in - size_px) / 2
         scale = size_px / (hi - lo)
