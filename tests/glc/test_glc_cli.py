@@ -72,3 +72,28 @@ def test_cli_usage_and_errors(tmp_path, store):
     assert main(["bogus"]) == 2
     with pytest.raises(FileNotFoundError):
         main(["eval", "--store", str(store.root), "--checkpoint", str(tmp_path / "missing")])
+
+
+def test_gaze_points_from_a_trace_or_from_map_peaks(store):
+    from types import SimpleNamespace
+
+    ep = store.read(0)
+    T = ep.length
+    uv = np.tile(np.array([[0.25, 0.75]], np.float32), (T, 1))
+    ok = np.ones(T, bool)
+    ok[3] = False
+
+    class Traced:  # like the visuomotor source
+        def trace(self, episode, camera):
+            return SimpleNamespace(uv=uv, valid=ok)
+
+    class MapsOnly:
+        def __call__(self, episode, camera, size):
+            maps = np.zeros((T, *size), np.float32)
+            maps[:, 48, 16] = 1.0  # cell centre (16.5/64, 48.5/64)
+            return maps, np.ones(T, bool)
+
+    pts, valid = episode_gaze_points(ep, "cam", Traced())
+    assert valid.tolist() == ok.tolist() and np.isnan(pts[3]).all() and np.allclose(pts[0], [0.25, 0.75])
+    pts, valid = episode_gaze_points(ep, "cam", MapsOnly())
+    assert valid.all() and np.allclose(pts[0], [16.5 / 64, 48.5 / 64])

@@ -62,7 +62,7 @@ class GLCTrainCommand:
     """torch CPU threads (0: torch's default)"""
     optim: GLCTrainConfig = field(
         default_factory=lambda: GLCTrainConfig(
-            steps=600, batch_size=8, lr=5e-4, warmup_steps=40, checkpoint_every=100, log_every=10
+            steps=600, batch_size=8, lr=1e-3, warmup_steps=20, checkpoint_every=50, log_every=10
         )
     )
     evaluate: bool = True

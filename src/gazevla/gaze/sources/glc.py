@@ -183,7 +183,7 @@ class GLCGaze:
             pre = preprocess_frames(np.asarray(frames[uniq]), S)  # only the frames this batch needs
             x = normalize(pre, self.cfg.mean, self.cfg.std).to(self.device)
             x = x[torch.from_numpy(inv.reshape(idx.shape)).to(self.device)]  # (B, nf, 3, S, S)
-            x = x.permute(0, 2, 1, 3, 4)
+            x = x.permute(0, 2, 1, 3, 4).contiguous()
             maps = frame_softmax(self.model(x), self.temperature).float().cpu()  # (B, nf, h, w)
             keep = tgt >= 0
             acc.index_add_(0, tgt[keep], maps[keep].reshape(-1, h * w))
