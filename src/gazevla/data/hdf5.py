@@ -51,7 +51,13 @@ from typing import Any
 
 import numpy as np
 
-from gazevla.data.importers import DataImportError, SourceEpisode, rotated_cameras, write_episodes
+from gazevla.data.importers import (
+    DataImportError,
+    SourceEpisode,
+    recorded_gaze,
+    rotated_cameras,
+    write_episodes,
+)
 from gazevla.data.store import Episode, EpisodeStore
 
 log = logging.getLogger(__name__)
@@ -273,15 +279,9 @@ class Hdf5Demos:
                     raise DataImportError(
                         f"{where}: gaze camera {cam!r} is not among the imported cameras {cameras}"
                     )
-                uv = get(gaze_key, allow_top=False).astype(np.float32).reshape(T, -1)
-                if uv.shape[1] != 2:
-                    raise DataImportError(
-                        f"{where}: gaze {gaze_key!r} has {uv.shape[1]} values per frame, expected 2 (u, v)"
-                    )
-                valid = np.isfinite(uv).all(axis=1)
-                uv[~valid] = np.nan
-                if cam in rotate:
-                    uv = 1.0 - uv
+                uv, valid = recorded_gaze(
+                    get(gaze_key, allow_top=False), f"{where}: gaze {gaze_key!r}", cam in rotate
+                )
                 extras[f"gaze_uv.{cam}"], extras[f"gaze_valid.{cam}"] = uv, valid
                 meta["gaze"] = {"camera": cam, "key": gaze_key}
         except DataImportError:

@@ -6,8 +6,8 @@
 
 `lerobot` reads a LeRobot v3.0 data set (gazevla.data.lerobot_v3), `hdf5` a LIBERO / robomimic HDF5 file
 (gazevla.data.hdf5), `export-priors` writes a store's priors as a LeRobot sidecar keyed by episode_index and
-frame_index (DIR/priors.parquet + DIR/priors.json; see `export_priors_lerobot`). Run a subcommand with
---help for its options.
+frame_index (DIR/priors.parquet + DIR/priors.json; see `export_priors_lerobot` in gazevla.data.lerobot_export).
+Run a subcommand with --help for its options.
 
 Imports stream one episode at a time and resume: the store index of an episode is fixed by its source
 (LeRobot episode_index; HDF5 demo number), episodes already in the store are skipped after checking that they
@@ -24,6 +24,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 from tqdm import tqdm
 
 from gazevla.data.store import Episode, EpisodeStore
@@ -65,6 +66,33 @@ def rotated_cameras(
     if unknown:
         raise DataImportError(f"rotate180 names camera(s) {unknown} that are not imported{where} ({cameras})")
     return names
+
+
+def recorded_gaze(points: np.ndarray, what: str, rotate180: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """A recorded gaze column as (T, 2) float32 (u, v) points (NaN where not finite) and their (T,) validity.
+
+    `what` names the column in the error raised when it does not hold 2 values per frame; rotate180 turns the
+    points with their camera (u -> 1-u, v -> 1-v)."""
+    uv = points.astype(np.float32).reshape(len(points), -1)
+    if uv.shape[1] != 2:
+        raise DataImportError(f"{what} has {uv.shape[1]} values per frame, expected 2 (u, v)")
+    valid = np.isfinite(uv).all(axis=1)
+    uv[~valid] = np.nan
+    if rotate180:
+        uv = 1.0 - uv
+    return uv, valid
+
+
+def require_pyarrow() -> tuple[Any, Any]:
+    """The pyarrow and pyarrow.parquet modules, or an ImportError that says how to install them."""
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ImportError as e:  # pragma: no cover - the `data` extra declares it
+        raise ImportError(
+            "LeRobot import/export needs pyarrow: pip install 'gazevla[data]' (or pip install pyarrow)"
+        ) from e
+    return pa, pq
 
 
 def _same_source(stored: dict[str, Any], identity: dict[str, Any]) -> bool:
@@ -132,7 +160,7 @@ _SUBCOMMANDS = {
     ),
     "hdf5": ("gazevla.data.hdf5", "import LIBERO / robomimic HDF5 demonstrations into an episode store"),
     "export-priors": (
-        "gazevla.data.lerobot_v3",
+        "gazevla.data.lerobot_export",
         "export a store's gaze priors as a LeRobot sidecar (parquet + JSON)",
     ),
 }
