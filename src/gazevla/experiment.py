@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -63,7 +64,8 @@ class ExperimentConfig:
     train_seeds: tuple[int, ...] = (0,)
     train: TrainConfig = field(default_factory=quick_train)
     parallel: int = 2
-    """training processes at once (each with threads_per_run threads)"""
+    """training processes at once (each with threads_per_run threads); as many as runs keeps every core busy
+    to the end instead of leaving one run to train alone"""
     threads_per_run: int = 1
     eval: EvalConfig = field(default_factory=lambda: EvalConfig(episodes=10, conditions=("clean", "dim:0.7", "gaussian_noise:0.5")))
     convergence_points: int = 3
@@ -176,7 +178,7 @@ class Experiment:
     def train_config(self, arm: str, seed: int, run_dir: Path) -> TrainConfig:
         c = self.cfg
         prior, _, _ = arm_prior(arm, c)
-        every = max(1, c.train.steps // max(1, c.convergence_points))
+        every = max(1, math.ceil(c.train.steps / max(1, c.convergence_points)))  # the last save is the final step
         return replace(
             c.train,
             run_dir=run_dir, seed=seed, save_every=every, eval_every=min(c.train.eval_every, every), progress=False,
@@ -347,7 +349,11 @@ def _train_one(cfg: TrainConfig) -> dict[str, Any]:
 
 # ----- presets ------------------------------------------------------------------------------------------------
 def quick() -> ExperimentConfig:
-    return ExperimentConfig(out=Path("runs/quick"))
+    """~15 minutes on 2 CPU cores: 2 tasks, 3 arms x 1,000 steps of batch 32, 10 unseen setups per condition."""
+    return ExperimentConfig(
+        out=Path("runs/quick"), train=replace(quick_train(), steps=1000, batch_size=32), parallel=3,
+        eval=EvalConfig(episodes=10, max_steps=120, conditions=("clean", "dim:0.7", "gaussian_noise:0.5")),
+    )
 
 
 def smoke() -> ExperimentConfig:

@@ -203,10 +203,11 @@ def markdown(report: dict[str, Any]) -> str:
     lines += [f"| {a} | " + " | ".join(f"{t[a][c]['drop_from_clean']:+.2f}" for c in conds[1:]) + " |" for a in arms]
     if report.get("paired"):
         lines += ["", "## Paired comparisons (same setups; exact McNemar on discordant episodes, Fisher on counts)", "",
-                  "| comparison | pairs | arm only | baseline only | McNemar p | Fisher p |", "|---|---|---|---|---|---|"]
+                  "| comparison | condition | pairs | arm only | baseline only | McNemar p | Fisher p |", "|---|---|---|---|---|---|---|"]
         for k, v in report["paired"].items():
+            comparison, condition = k.split(" | ", 1)
             vals = list(v.values())
-            lines.append(f"| {k} | {vals[0]} | {vals[1]} | {vals[2]} | {v['mcnemar_p']:.3f} | {v['fisher_p']:.3f} |")
+            lines.append(f"| {comparison} | {condition} | {vals[0]} | {vals[1]} | {vals[2]} | {v['mcnemar_p']:.3f} | {v['fisher_p']:.3f} |")
     lines += ["", "## What the numbers say", "", *report["verdict"], ""]
     if report.get("convergence"):
         conv = report["convergence"]
