@@ -73,7 +73,13 @@ def probe_cost(batch: int = 32, tokens: int = 80, dim: int = 128, layers: int = 
         (out.pow(2).mean() + gaze_loss(gaze, probe.distribution())[0]).backward()
 
     t_plain, t_probe = timeit(plain), timeit(probed)
-    return {"batch": batch, "tokens": tokens, "step_s_plain": t_plain, "step_s_probe": t_probe, "ratio": t_probe / t_plain}
+    return {
+        "batch": batch,
+        "tokens": tokens,
+        "step_s_plain": t_plain,
+        "step_s_probe": t_probe,
+        "ratio": t_probe / t_plain,
+    }
 
 
 def main() -> None:
@@ -82,7 +88,11 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     out = {
-        "machine": {"cpu": platform.processor() or platform.machine(), "threads": args.threads, "torch": torch.__version__},
+        "machine": {
+            "cpu": platform.processor() or platform.machine(),
+            "threads": args.threads,
+            "torch": torch.__version__,
+        },
         "prior_maths": prior_maths(),
         "probe_on_nn_transformer": probe_cost(),
     }

@@ -1,6 +1,6 @@
 """Put an experiment's results into the README (the block between its quick-results markers).
 
-    python scripts/update_readme_results.py runs/quick [--marker quick-results]
+python scripts/update_readme_results.py runs/quick [--marker quick-results]
 """
 
 import argparse

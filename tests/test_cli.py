@@ -23,5 +23,7 @@ def test_split_preset():
 
 
 def test_console_script_runs():
-    r = subprocess.run([sys.executable, "-m", "gazevla.cli", "--help"], capture_output=True, text=True, check=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "gazevla.cli", "--help"], capture_output=True, text=True, check=True
+    )
     assert "commands:" in r.stdout

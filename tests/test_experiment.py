@@ -23,7 +23,14 @@ def test_smoke_experiment_end_to_end_and_resume(tmp_path, capsys):
     assert report["videos"] and all((out / v).exists() for v in report["videos"])
     assert (out / "report.md").read_text().startswith("# gazevla experiment")
     eval_info = json.loads((out / "eval" / "eval_info.json").read_text())
-    seeds = {(e["arm"], e["condition"]): sorted(x["seed"] for x in eval_info["episodes"] if (x["arm"], x["condition"]) == (e["arm"], e["condition"])) for e in eval_info["episodes"]}
+    seeds = {
+        (e["arm"], e["condition"]): sorted(
+            x["seed"]
+            for x in eval_info["episodes"]
+            if (x["arm"], x["condition"]) == (e["arm"], e["condition"])
+        )
+        for e in eval_info["episodes"]
+    }
     assert len({tuple(v) for v in seeds.values()}) == 1  # every arm and condition on the same setups
     markers = {s: (out / "stages" / f"{s}.json").stat().st_mtime_ns for s in STAGES}
     capsys.readouterr()

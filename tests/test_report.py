@@ -15,11 +15,25 @@ from gazevla.report import (
 
 
 def records(arm, successes, condition="clean", task="reach-v3", start=1000):
-    return [{"arm": arm, "task": task, "condition": condition, "seed": start + i, "success": bool(s), "length": 50} for i, s in enumerate(successes)]
+    return [
+        {
+            "arm": arm,
+            "task": task,
+            "condition": condition,
+            "seed": start + i,
+            "success": bool(s),
+            "length": 50,
+        }
+        for i, s in enumerate(successes)
+    ]
 
 
 def test_success_table_pools_seeds_and_reports_drops():
-    recs = records("baseline@s0", [1, 0, 1, 0]) + records("baseline@s1", [1, 1, 0, 0]) + records("baseline@s0", [0, 0, 1, 0], "dim:0.7")
+    recs = (
+        records("baseline@s0", [1, 0, 1, 0])
+        + records("baseline@s1", [1, 1, 0, 0])
+        + records("baseline@s0", [0, 0, 1, 0], "dim:0.7")
+    )
     t = success_table(recs)
     assert t["baseline"]["clean"]["successes"] == 4 and t["baseline"]["clean"]["n"] == 8
     assert t["baseline"]["dim:0.7"]["drop_from_clean"] == pytest.approx(0.5 - 0.25)
@@ -39,8 +53,13 @@ def test_paired_tests_pair_by_seed_and_task():
 
 
 def test_convergence_steps_to_threshold_and_baseline_final():
-    conv = convergence({"baseline": {100: (1, 10), 200: (4, 10)}, "gaze": {100: (5, 10), 200: (6, 10)}}, threshold=0.5)
-    assert conv["arms"]["gaze"]["steps_to_threshold"] == 100 and conv["arms"]["baseline"]["steps_to_threshold"] is None
+    conv = convergence(
+        {"baseline": {100: (1, 10), 200: (4, 10)}, "gaze": {100: (5, 10), 200: (6, 10)}}, threshold=0.5
+    )
+    assert (
+        conv["arms"]["gaze"]["steps_to_threshold"] == 100
+        and conv["arms"]["baseline"]["steps_to_threshold"] is None
+    )
     assert conv["arms"]["gaze"]["steps_to_baseline_final"] == 100
 
 
@@ -56,11 +75,21 @@ def test_markdown_and_readme_block(tmp_path):
     recs = records("baseline@s0", [1, 0]) + records("gaze@s0", [1, 1])
     success = success_table(recs)
     report = {
-        "preset": "test", "date": "today", "machine": {"summary": "a test machine"}, "wall_time_s": 60.0,
-        "stage_times_s": {"train": 1.0}, "tasks": ["reach-v3"], "demos": {"episodes": 2, "frames": 100},
+        "preset": "test",
+        "date": "today",
+        "machine": {"summary": "a test machine"},
+        "wall_time_s": 60.0,
+        "stage_times_s": {"train": 1.0},
+        "tasks": ["reach-v3"],
+        "demos": {"episodes": 2, "frames": 100},
         "train": {"steps": 10, "batch_size": 4, "seeds": [0], "gaze_weight": 0.1, "gaze_layers": [-1]},
-        "eval": {"episodes": 2, "seeds": "1000..1001"}, "success": success, "paired": paired_tests(recs), "verdict": verdict(success),
-        "convergence": None, "alignment": {"gaze": {"gaze_kl": 0.1, "object_mass": 0.5}}, "figures": {"attention": "figures/attention.png"},
+        "eval": {"episodes": 2, "seeds": "1000..1001"},
+        "success": success,
+        "paired": paired_tests(recs),
+        "verdict": verdict(success),
+        "convergence": None,
+        "alignment": {"gaze": {"gaze_kl": 0.1, "object_mass": 0.5}},
+        "figures": {"attention": "figures/attention.png"},
     }
     md = markdown(report)
     assert "| gaze | 2/2 = 1.00" in md and "gaze vs baseline | clean" in md

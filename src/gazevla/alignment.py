@@ -50,8 +50,14 @@ def attention_maps(
     policy.eval()
     cfg = policy.config
     ds = EpisodeDataset(
-        store, list(episodes), cfg.cameras, cfg.chunk, policy.tokenizer,
-        gaze_prior=prior, gaze_camera=camera if prior else None, geometry=policy.geometry(camera) if prior else None,
+        store,
+        list(episodes),
+        cfg.cameras,
+        cfg.chunk,
+        policy.tokenizer,
+        gaze_prior=prior,
+        gaze_camera=camera if prior else None,
+        geometry=policy.geometry(camera) if prior else None,
     )
     spec = policy.gaze_probe_spec(camera, layers)
     attn, gaze, valid, ep_t = [], [], [], []
@@ -71,7 +77,9 @@ def attention_maps(
     key = f"{object_key}.{camera}"
     eps = [store.read(i, cameras=[camera]) for i in episodes]
     if all(key in e.extras for e in eps):
-        pts = np.concatenate([np.asarray(e.extras[key], dtype=np.float32).reshape(e.length, -1)[:, :2] for e in eps])
+        pts = np.concatenate(
+            [np.asarray(e.extras[key], dtype=np.float32).reshape(e.length, -1)[:, :2] for e in eps]
+        )
         out["object_region"] = region_mask(pts, policy, camera)
     return out
 
@@ -81,7 +89,9 @@ def alignment_report(maps: dict[str, Tensor]) -> dict[str, Any]:
     attn = maps["attention"]
     out: dict[str, Any] = {"frames": int(attn.shape[0])}
     if "gaze" in maps:
-        out.update({f"gaze_{k}": v for k, v in alignment_metrics(maps["gaze"], attn, maps["gaze_valid"]).items()})
+        out.update(
+            {f"gaze_{k}": v for k, v in alignment_metrics(maps["gaze"], attn, maps["gaze_valid"]).items()}
+        )
     if "object_region" in maps:
         region = maps["object_region"]
         has = region.any(-1)

@@ -16,7 +16,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "priors": ("gazevla.gaze.priors", "make per-frame gaze priors for an episode store from a gaze source"),
     "train": ("gazevla.train", "train a policy, with or without the gaze regularizer"),
     "eval": ("gazevla.evaluate", "evaluate a checkpoint in simulation (clean, lighting, sensor noise)"),
-    "experiment": ("gazevla.experiment", "the end-to-end pipeline: demos, priors, training, evaluation, report"),
+    "experiment": (
+        "gazevla.experiment",
+        "the end-to-end pipeline: demos, priors, training, evaluation, report",
+    ),
     "glc": ("gazevla.glc.cli", "train / evaluate the GLC video gaze estimator"),
     "import": ("gazevla.data.importers", "import LeRobot v3 or HDF5 demonstrations into an episode store"),
     "viz": ("gazevla.viz.cli", "draw episodes with their gaze and attention"),

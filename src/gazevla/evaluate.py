@@ -61,7 +61,9 @@ def parse_checkpoints(items: Sequence[str]) -> dict[str, Path]:
         if name in arms:
             raise ValueError(f"two checkpoints named {name!r}; name them NAME=DIR")
         if not (Path(path) / "config.json").exists():
-            raise FileNotFoundError(f"checkpoint {path!r} ({name}) is not a saved policy folder (no config.json)")
+            raise FileNotFoundError(
+                f"checkpoint {path!r} ({name}) is not a saved policy folder (no config.json)"
+            )
         arms[name] = Path(path)
     if not arms:
         raise ValueError("no checkpoints to evaluate: pass --checkpoints NAME=DIR ...")
@@ -102,8 +104,12 @@ class Worker:
             from gazevla.envs import MetaWorldEnv, parse_perturbation
 
             self.envs[key] = MetaWorldEnv(
-                task, cameras=cameras, image_size=size, max_steps=self.max_steps,
-                perturbation=parse_perturbation("" if condition == "clean" else condition), gl_backend=self.gl_backend,
+                task,
+                cameras=cameras,
+                image_size=size,
+                max_steps=self.max_steps,
+                perturbation=parse_perturbation("" if condition == "clean" else condition),
+                gl_backend=self.gl_backend,
             )
         return self.envs[key]
 
@@ -134,7 +140,14 @@ class Worker:
             success = success or bool(info["success"])
             if terminated or truncated:
                 break
-        out = {"arm": job.arm, "task": job.task, "condition": job.condition, "seed": job.seed, "success": success, "length": steps}
+        out = {
+            "arm": job.arm,
+            "task": job.task,
+            "condition": job.condition,
+            "seed": job.seed,
+            "success": success,
+            "length": steps,
+        }
         if job.video and frames:
             from gazevla.viz.overlay import write_gif
 
@@ -175,19 +188,27 @@ def make_jobs(cfg: EvalConfig, arms: dict[str, Path]) -> list[Job]:
                     video = None
                     if i < cfg.videos:
                         tag = condition.replace(":", "").replace("+", "_")
-                        video = str(Path(cfg.out) / "videos" / f"{arm}__{task}__{tag}__seed{cfg.seed_start + i}.gif")
+                        video = str(
+                            Path(cfg.out) / "videos" / f"{arm}__{task}__{tag}__seed{cfg.seed_start + i}.gif"
+                        )
                     jobs.append(Job(arm, str(ckpt), task, condition, cfg.seed_start + i, video))
     return jobs
 
 
-def run_jobs(jobs: list[Job], workers: int, max_steps: int, gl_backend: str | None, progress: bool = True) -> list[dict[str, Any]]:
+def run_jobs(
+    jobs: list[Job], workers: int, max_steps: int, gl_backend: str | None, progress: bool = True
+) -> list[dict[str, Any]]:
     """Run rollouts in `workers` processes (spawned: MuJoCo and torch threads are not fork-safe)."""
     if workers <= 1:
         _init_worker(max_steps, gl_backend)
         return [_run_job(j) for j in tqdm(jobs, desc="eval", disable=not progress)]
     # Longest jobs first would need lengths we do not know; interleave arms so workers share load evenly.
-    with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_init_worker, initargs=(max_steps, gl_backend)) as ex:
-        return list(tqdm(ex.map(_run_job, jobs, chunksize=1), total=len(jobs), desc="eval", disable=not progress))
+    with ProcessPoolExecutor(
+        workers, mp_context=get_context("spawn"), initializer=_init_worker, initargs=(max_steps, gl_backend)
+    ) as ex:
+        return list(
+            tqdm(ex.map(_run_job, jobs, chunksize=1), total=len(jobs), desc="eval", disable=not progress)
+        )
 
 
 def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
@@ -200,7 +221,13 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     def cell(rs: list[dict[str, Any]]) -> dict[str, Any]:
         k, n = sum(r["success"] for r in rs), len(rs)
         lo, hi = wilson(k, n)
-        return {"successes": k, "n": n, "rate": k / n if n else float("nan"), "ci95": [lo, hi], "mean_length": float(np.mean([r["length"] for r in rs])) if rs else float("nan")}
+        return {
+            "successes": k,
+            "n": n,
+            "rate": k / n if n else float("nan"),
+            "ci95": [lo, hi],
+            "mean_length": float(np.mean([r["length"] for r in rs])) if rs else float("nan"),
+        }
 
     arms = sorted({r["arm"] for r in records})
     conditions = list(dict.fromkeys(r["condition"] for r in records))
@@ -253,7 +280,9 @@ def format_table(summary: dict[str, Any]) -> str:
         cells = []
         for c in conditions:
             p = summary["arms"][arm][c]["pooled"]
-            cells.append(f"{p['successes']}/{p['n']} = {p['rate']:.2f} [{p['ci95'][0]:.2f}, {p['ci95'][1]:.2f}]")
+            cells.append(
+                f"{p['successes']}/{p['n']} = {p['rate']:.2f} [{p['ci95'][0]:.2f}, {p['ci95'][1]:.2f}]"
+            )
         lines.append(f"| {arm} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -261,11 +290,24 @@ def format_table(summary: dict[str, Any]) -> str:
 def presets() -> dict[str, Any]:
     return {
         "default": EvalConfig,
-        "smoke": lambda: EvalConfig(episodes=2, max_steps=20, workers=1, videos=1, conditions=("clean", "dim:0.7")),
+        "smoke": lambda: EvalConfig(
+            episodes=2, max_steps=20, workers=1, videos=1, conditions=("clean", "dim:0.7")
+        ),
         "quick": lambda: EvalConfig(episodes=10, conditions=("clean", "dim:0.7", "gaussian_noise:0.5")),
         "paper": lambda: EvalConfig(
-            episodes=50, max_steps=200, workers=os.cpu_count() or 2,
-            conditions=("clean", "dim:0.7", "bright:0.7", "tint:1", "light_direction:1", "gaussian_noise:0.3", "gaussian_noise:0.6", "salt_pepper:0.5"),
+            episodes=50,
+            max_steps=200,
+            workers=os.cpu_count() or 2,
+            conditions=(
+                "clean",
+                "dim:0.7",
+                "bright:0.7",
+                "tint:1",
+                "light_direction:1",
+                "gaussian_noise:0.3",
+                "gaussian_noise:0.6",
+                "salt_pepper:0.5",
+            ),
         ),
     }
 
@@ -274,7 +316,9 @@ def main(argv: list[str] | None = None) -> int:
     from gazevla.config import parse
 
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    cfg = parse(presets(), sys.argv[1:] if argv is None else argv, prog="gazevla eval", description=__doc__ or "")
+    cfg = parse(
+        presets(), sys.argv[1:] if argv is None else argv, prog="gazevla eval", description=__doc__ or ""
+    )
     info = evaluate(cfg)
     print(format_table(info["summary"]))
     print(f"wrote {Path(cfg.out) / 'eval_info.json'}")

@@ -67,7 +67,9 @@ class ExperimentConfig:
     """training processes at once (each with threads_per_run threads); as many as runs keeps every core busy
     to the end instead of leaving one run to train alone"""
     threads_per_run: int = 1
-    eval: EvalConfig = field(default_factory=lambda: EvalConfig(episodes=10, conditions=("clean", "dim:0.7", "gaussian_noise:0.5")))
+    eval: EvalConfig = field(
+        default_factory=lambda: EvalConfig(episodes=10, conditions=("clean", "dim:0.7", "gaussian_noise:0.5"))
+    )
     convergence_points: int = 3
     """checkpoints along training (the last is the final one) evaluated clean for the success-vs-steps curve"""
     convergence_episodes: int = 10
@@ -138,14 +140,29 @@ class Experiment:
         from gazevla.envs.collect import CollectConfig, collect
 
         c = self.cfg
-        common = dict(tasks=c.tasks, cameras=(c.camera,), image_size=c.image_size, workers=c.collect_workers, gl_backend=c.eval.gl_backend or "")
+        common = dict(
+            tasks=c.tasks,
+            cameras=(c.camera,),
+            image_size=c.image_size,
+            workers=c.collect_workers,
+            gl_backend=c.eval.gl_backend or "",
+        )
         out = {}
-        for name, store, n, seed_base in (("train", self.store, c.demos_per_task, 0), ("heldout", self.heldout, c.heldout_per_task, c.eval.seed_start + 500)):
+        for name, store, n, seed_base in (
+            ("train", self.store, c.demos_per_task, 0),
+            ("heldout", self.heldout, c.heldout_per_task, c.eval.seed_start + 500),
+        ):
             report = collect(CollectConfig(out=store, episodes=n, seed_base=seed_base, **common))
             if not report.complete:
-                raise RuntimeError(f"demo collection into {store} did not reach {n} successful episodes per task: {report.tasks}")
+                raise RuntimeError(
+                    f"demo collection into {store} did not reach {n} successful episodes per task: {report.tasks}"
+                )
             st = EpisodeStore(store)
-            out[name] = {"episodes": len(st), "frames": sum(st.meta(i)["length"] for i in st.indices()), "seconds": report.seconds}
+            out[name] = {
+                "episodes": len(st),
+                "frames": sum(st.meta(i)["length"] for i in st.indices()),
+                "seconds": report.seconds,
+            }
         return out
 
     def priors_needed(self) -> list[tuple[str, str, tuple[str, ...]]]:
@@ -168,26 +185,50 @@ class Experiment:
         made = []
         for store in (self.store, self.heldout):
             for name, source, params in self.priors_needed():
-                make_priors(PriorsConfig(store=store, source=source, source_params=params, name=name, camera=c.camera, size=c.prior_size, aggregation=c.aggregation))
+                make_priors(
+                    PriorsConfig(
+                        store=store,
+                        source=source,
+                        source_params=params,
+                        name=name,
+                        camera=c.camera,
+                        size=c.prior_size,
+                        aggregation=c.aggregation,
+                    )
+                )
                 made.append(f"{store.name}/{name}")
         return {"priors": made}
 
     def run_dirs(self) -> dict[str, Path]:
-        return {f"{arm}@s{seed}": self.out / "train" / f"{arm}_s{seed}" for arm in self.cfg.arms for seed in self.cfg.train_seeds}
+        return {
+            f"{arm}@s{seed}": self.out / "train" / f"{arm}_s{seed}"
+            for arm in self.cfg.arms
+            for seed in self.cfg.train_seeds
+        }
 
     def train_config(self, arm: str, seed: int, run_dir: Path) -> TrainConfig:
         c = self.cfg
         prior, _, _ = arm_prior(arm, c)
-        every = max(1, math.ceil(c.train.steps / max(1, c.convergence_points)))  # the last save is the final step
+        every = max(
+            1, math.ceil(c.train.steps / max(1, c.convergence_points))
+        )  # the last save is the final step
         return replace(
             c.train,
-            run_dir=run_dir, seed=seed, save_every=every, eval_every=min(c.train.eval_every, every), progress=False,
-            threads=c.threads_per_run, data=replace(c.train.data, store=self.store),
+            run_dir=run_dir,
+            seed=seed,
+            save_every=every,
+            eval_every=min(c.train.eval_every, every),
+            progress=False,
+            threads=c.threads_per_run,
+            data=replace(c.train.data, store=self.store),
             gaze=replace(c.train.gaze, prior=prior, camera=c.camera if prior else None),
         )
 
     def stage_train(self, _: dict[str, Any]) -> dict[str, Any]:
-        jobs = [(name, self.train_config(name.split("@")[0], int(name.split("@s")[1]), d)) for name, d in self.run_dirs().items()]
+        jobs = [
+            (name, self.train_config(name.split("@")[0], int(name.split("@s")[1]), d))
+            for name, d in self.run_dirs().items()
+        ]
         if self.cfg.parallel <= 1:
             finished = [_train_one(cfg) for _, cfg in jobs]
         else:
@@ -200,7 +241,12 @@ class Experiment:
 
     def stage_eval(self, results: dict[str, Any]) -> dict[str, Any]:
         ckpts = self.final_checkpoints(results)
-        ecfg = replace(self.cfg.eval, tasks=self.cfg.tasks, out=self.out / "eval", checkpoints=tuple(f"{k}={v}" for k, v in ckpts.items()))
+        ecfg = replace(
+            self.cfg.eval,
+            tasks=self.cfg.tasks,
+            out=self.out / "eval",
+            checkpoints=tuple(f"{k}={v}" for k, v in ckpts.items()),
+        )
         info = evaluate(ecfg)
         return {"eval_info": str(self.out / "eval" / "eval_info.json"), "episodes": len(info["episodes"])}
 
@@ -215,8 +261,13 @@ class Experiment:
         if not ckpts:
             return {"eval_info": None, "episodes": 0}
         ecfg = replace(
-            self.cfg.eval, tasks=self.cfg.tasks, out=self.out / "converge", conditions=("clean",), videos=0,
-            episodes=self.cfg.convergence_episodes, checkpoints=tuple(f"{k}={v}" for k, v in ckpts.items()),
+            self.cfg.eval,
+            tasks=self.cfg.tasks,
+            out=self.out / "converge",
+            conditions=("clean",),
+            videos=0,
+            episodes=self.cfg.convergence_episodes,
+            checkpoints=tuple(f"{k}={v}" for k, v in ckpts.items()),
         )
         info = evaluate(ecfg)
         return {"eval_info": str(self.out / "converge" / "eval_info.json"), "episodes": len(info["episodes"])}
@@ -264,7 +315,9 @@ class Experiment:
                 heat, _ = store.read_prior(gaze_prior, ep)
                 panel["gaze prior"] = heat[t]
             for arm, (policy, maps) in first.items():
-                panel[f"{arm} attention"] = grid_to_image(maps["attention"][r], policy.geometry(c.camera), frame.shape[:2]).numpy()
+                panel[f"{arm} attention"] = grid_to_image(
+                    maps["attention"][r], policy.geometry(c.camera), frame.shape[:2]
+                ).numpy()
             panels.append(panel)
         columns = (["gaze prior"] if gaze_prior else []) + [f"{arm} attention" for arm in first]
         path = self.out / "figures" / "attention.png"
@@ -291,19 +344,27 @@ class Experiment:
         conv_path = results["converge"]["eval_info"]
         conv_records = json.loads(Path(conv_path).read_text())["episodes"] if conv_path else []
         last_seed = c.eval.seed_start + min(c.convergence_episodes, c.eval.episodes)
-        final_clean = [{**r, "arm": f"{r['arm']}#{c.train.steps}"} for r in ev["episodes"] if r["condition"] == "clean" and r["seed"] < last_seed]
+        final_clean = [
+            {**r, "arm": f"{r['arm']}#{c.train.steps}"}
+            for r in ev["episodes"]
+            if r["condition"] == "clean" and r["seed"] < last_seed
+        ]
         curves: dict[str, dict[int, list[int]]] = {}
         for r in conv_records + final_clean:
             name, step = r["arm"].rsplit("#", 1)
             cell = curves.setdefault(name.split("@")[0], {}).setdefault(int(step), [0, 0])
             cell[0] += int(r["success"])
             cell[1] += 1
-        conv = convergence({a: {s: (k, n) for s, (k, n) in pts.items()} for a, pts in curves.items()}, c.threshold)
+        conv = convergence(
+            {a: {s: (k, n) for s, (k, n) in pts.items()} for a, pts in curves.items()}, c.threshold
+        )
         losses = {}
         for name, d in self.run_dirs().items():
             if name.endswith(f"@s{c.train_seeds[0]}"):
                 recs = read_metrics(d / "metrics.jsonl")
-                losses[name.split("@")[0]] = [(r["step"], r["loss/action"], r.get("val/gaze_kl")) for r in recs if "loss/action" in r]
+                losses[name.split("@")[0]] = [
+                    (r["step"], r["loss/action"], r.get("val/gaze_kl")) for r in recs if "loss/action" in r
+                ]
         figs = self.out / "figures"
         figs.mkdir(parents=True, exist_ok=True)
         plot_success(success, figs / "success.png")
@@ -317,14 +378,32 @@ class Experiment:
             "stage_times_s": dict(self.times),
             "tasks": list(c.tasks),
             "demos": {"episodes": demos.get("episodes"), "frames": demos.get("frames")},
-            "train": {"steps": c.train.steps, "batch_size": c.train.batch_size, "seeds": list(c.train_seeds), "gaze_weight": c.train.gaze.weight, "gaze_layers": list(c.train.gaze.layers), "arms": list(c.arms)},
-            "eval": {"episodes": c.eval.episodes, "conditions": list(c.eval.conditions), "seeds": f"{c.eval.seed_start}..{c.eval.seed_start + c.eval.episodes - 1}"},
+            "train": {
+                "steps": c.train.steps,
+                "batch_size": c.train.batch_size,
+                "seeds": list(c.train_seeds),
+                "gaze_weight": c.train.gaze.weight,
+                "gaze_layers": list(c.train.gaze.layers),
+                "arms": list(c.arms),
+            },
+            "eval": {
+                "episodes": c.eval.episodes,
+                "conditions": list(c.eval.conditions),
+                "seeds": f"{c.eval.seed_start}..{c.eval.seed_start + c.eval.episodes - 1}",
+            },
             "success": success,
             "paired": paired_tests(ev["episodes"]),
             "verdict": verdict(success),
             "convergence": conv,
-            "alignment": {n.split("@")[0] if len(c.train_seeds) == 1 else n: v for n, v in results["align"]["alignment"].items()},
-            "figures": {"success": "figures/success.png", "convergence": "figures/convergence.png", "attention": results["align"]["figure"]},
+            "alignment": {
+                n.split("@")[0] if len(c.train_seeds) == 1 else n: v
+                for n, v in results["align"]["alignment"].items()
+            },
+            "figures": {
+                "success": "figures/success.png",
+                "convergence": "figures/convergence.png",
+                "attention": results["align"]["figure"],
+            },
             "videos": [str(Path(e["video"]).relative_to(self.out)) for e in ev["episodes"] if e.get("video")],
             "config": to_dict(c),
         }
@@ -344,14 +423,21 @@ def _train_one(cfg: TrainConfig) -> dict[str, Any]:
         return {"checkpoint": str(latest_checkpoint(cfg.run_dir)), "step": done[-1], "resumed": False}
     resume = latest_checkpoint(cfg.run_dir) is not None
     res = train(replace(cfg, resume=resume))
-    return {"checkpoint": str(res["checkpoint"]), "step": int(res["step"]), "resumed": resume, "final_metrics": res["metrics"]}
+    return {
+        "checkpoint": str(res["checkpoint"]),
+        "step": int(res["step"]),
+        "resumed": resume,
+        "final_metrics": res["metrics"],
+    }
 
 
 # ----- presets ------------------------------------------------------------------------------------------------
 def quick() -> ExperimentConfig:
     """~15 minutes on 2 CPU cores: 2 tasks, 3 arms x 1,000 steps of batch 32, 10 unseen setups per condition."""
     return ExperimentConfig(
-        out=Path("runs/quick"), train=replace(quick_train(), steps=1000, batch_size=32), parallel=3,
+        out=Path("runs/quick"),
+        train=replace(quick_train(), steps=1000, batch_size=32),
+        parallel=3,
         eval=EvalConfig(episodes=10, max_steps=120, conditions=("clean", "dim:0.7", "gaussian_noise:0.5")),
     )
 
@@ -359,24 +445,54 @@ def quick() -> ExperimentConfig:
 def smoke() -> ExperimentConfig:
     t = smoke_train()
     return ExperimentConfig(
-        out=Path("runs/smoke"), tasks=("reach-v3",), image_size=48, demos_per_task=3, heldout_per_task=1, collect_workers=1,
-        prior_size=(32, 32), train=replace(t, steps=12, gaze=GazeConfig(weight=0.1)), parallel=1,
+        out=Path("runs/smoke"),
+        tasks=("reach-v3",),
+        image_size=48,
+        demos_per_task=3,
+        heldout_per_task=1,
+        collect_workers=1,
+        prior_size=(32, 32),
+        train=replace(t, steps=12, gaze=GazeConfig(weight=0.1)),
+        parallel=1,
         eval=EvalConfig(episodes=2, max_steps=15, workers=1, videos=1, conditions=("clean", "dim:0.7")),
-        convergence_points=2, convergence_episodes=1, figure_frames=2,
+        convergence_points=2,
+        convergence_episodes=1,
+        figure_frames=2,
     )
 
 
 def paper() -> ExperimentConfig:
     t = quick_train()
     return ExperimentConfig(
-        out=Path("runs/paper"), tasks=("reach-v3", "button-press-topdown-v3", "pick-place-v3", "drawer-open-v3", "push-v3"),
-        image_size=128, demos_per_task=50, heldout_per_task=5,
+        out=Path("runs/paper"),
+        tasks=("reach-v3", "button-press-topdown-v3", "pick-place-v3", "drawer-open-v3", "push-v3"),
+        image_size=128,
+        demos_per_task=50,
+        heldout_per_task=5,
         arms=("baseline", "gaze", "perturbed", "blobs", "other_episode", "saliency", "uniform"),
         train_seeds=(0, 1, 2),
-        train=replace(t, steps=20_000, policy=dataclasses.replace(t.policy, image_hw=(128, 128), patch_size=16),
-                      optim=OptimConfig(lr=5e-4, warmup_steps=500, min_lr_frac=0.05), data=DataConfig()),
-        eval=EvalConfig(episodes=50, max_steps=200, conditions=("clean", "dim:0.7", "bright:0.7", "tint:1", "gaussian_noise:0.3", "gaussian_noise:0.6", "salt_pepper:0.5")),
-        convergence_points=8, convergence_episodes=20,
+        train=replace(
+            t,
+            steps=20_000,
+            policy=dataclasses.replace(t.policy, image_hw=(128, 128), patch_size=16),
+            optim=OptimConfig(lr=5e-4, warmup_steps=500, min_lr_frac=0.05),
+            data=DataConfig(),
+        ),
+        eval=EvalConfig(
+            episodes=50,
+            max_steps=200,
+            conditions=(
+                "clean",
+                "dim:0.7",
+                "bright:0.7",
+                "tint:1",
+                "gaussian_noise:0.3",
+                "gaussian_noise:0.6",
+                "salt_pepper:0.5",
+            ),
+        ),
+        convergence_points=8,
+        convergence_episodes=20,
     )
 
 
@@ -393,7 +509,9 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     Experiment(cfg, preset).run()
     print((Path(cfg.out) / "report.md").read_text())
-    print(f"experiment finished in {(time.perf_counter() - t0) / 60:.1f} min; report: {Path(cfg.out) / 'report.md'}")
+    print(
+        f"experiment finished in {(time.perf_counter() - t0) / 60:.1f} min; report: {Path(cfg.out) / 'report.md'}"
+    )
     return 0
 
 

@@ -31,7 +31,9 @@ def gaze_kl(gaze: Tensor, attention: Tensor, kind: Divergence = "forward", eps: 
     Inputs are renormalised over N (after clamping at 0) so small numerical drift cannot make the result
     negative; values stay finite when either input has zeros."""
     if gaze.shape != attention.shape:
-        raise ValueError(f"gaze {tuple(gaze.shape)} and attention {tuple(attention.shape)} must have the same shape")
+        raise ValueError(
+            f"gaze {tuple(gaze.shape)} and attention {tuple(attention.shape)} must have the same shape"
+        )
     g = gaze.detach().to(attention.dtype).clamp_min(0)
     a = attention.clamp_min(0)
     g = g / g.sum(-1, keepdim=True).clamp_min(eps)
@@ -49,7 +51,11 @@ def gaze_kl(gaze: Tensor, attention: Tensor, kind: Divergence = "forward", eps: 
 
 
 def gaze_loss(
-    gaze: Tensor, attention: Tensor, valid: Tensor | None = None, kind: Divergence = "forward", eps: float = 1e-8
+    gaze: Tensor,
+    attention: Tensor,
+    valid: Tensor | None = None,
+    kind: Divergence = "forward",
+    eps: float = 1e-8,
 ) -> tuple[Tensor, dict[str, float]]:
     """Mean divergence over valid samples.
 

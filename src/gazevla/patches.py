@@ -47,7 +47,9 @@ class PatchGeometry:
         H, W = self.input_hw
         step = self.patch_size * self.pixel_shuffle
         if self.patch_size <= 0 or self.pixel_shuffle <= 0:
-            raise ValueError(f"patch_size and pixel_shuffle must be positive, got {self.patch_size}, {self.pixel_shuffle}")
+            raise ValueError(
+                f"patch_size and pixel_shuffle must be positive, got {self.patch_size}, {self.pixel_shuffle}"
+            )
         if H % step or W % step:
             raise ValueError(
                 f"input {H}x{W} px is not divisible into tokens of {self.patch_size} px patches x pixel_shuffle "
@@ -56,11 +58,15 @@ class PatchGeometry:
         if self.pad not in ("topleft", "centre", "bottomright"):
             raise ValueError(f"pad must be topleft, centre or bottomright, got {self.pad!r}")
         if self.resize != "stretch" and self.src_hw is None:
-            raise ValueError(f"resize={self.resize!r} keeps the aspect ratio and needs src_hw (the stored frame size)")
+            raise ValueError(
+                f"resize={self.resize!r} keeps the aspect ratio and needs src_hw (the stored frame size)"
+            )
         if self.crop_box is not None:
             u0, v0, u1, v1 = self.crop_box
             if not (0 <= u0 < u1 <= 1 and 0 <= v0 < v1 <= 1):
-                raise ValueError(f"crop_box must satisfy 0 <= u0 < u1 <= 1 and 0 <= v0 < v1 <= 1, got {self.crop_box}")
+                raise ValueError(
+                    f"crop_box must satisfy 0 <= u0 < u1 <= 1 and 0 <= v0 < v1 <= 1, got {self.crop_box}"
+                )
 
     @property
     def grid_hw(self) -> tuple[int, int]:
@@ -75,22 +81,31 @@ class PatchGeometry:
     def check_grid(self, grid_hw: tuple[int, int]) -> None:
         """Raise if a model's patch grid differs from this geometry's."""
         if tuple(grid_hw) != self.grid_hw:
-            raise ValueError(f"model patch grid {tuple(grid_hw)} does not match the image geometry's grid {self.grid_hw} ({self})")
+            raise ValueError(
+                f"model patch grid {tuple(grid_hw)} does not match the image geometry's grid {self.grid_hw} ({self})"
+            )
 
     # ----- the affine map, per axis: input_px = scale * x + offset, x normalised in the oriented, cropped frame
     def _axis(self, axis: int) -> tuple[float, float, float, float, bool]:
         """(scale, offset, crop_lo, crop_hi, flipped) for axis 0 (v, rows) or 1 (u, columns)."""
         n_in = self.input_hw[axis]
-        flipped = self.orientation == "rot180" or (self.orientation == "vflip" and axis == 0) or (
-            self.orientation == "hflip" and axis == 1
+        flipped = (
+            self.orientation == "rot180"
+            or (self.orientation == "vflip" and axis == 0)
+            or (self.orientation == "hflip" and axis == 1)
         )
-        lo, hi = (0.0, 1.0) if self.crop_box is None else (
-            (self.crop_box[1], self.crop_box[3]) if axis == 0 else (self.crop_box[0], self.crop_box[2])
+        lo, hi = (
+            (0.0, 1.0)
+            if self.crop_box is None
+            else ((self.crop_box[1], self.crop_box[3]) if axis == 0 else (self.crop_box[0], self.crop_box[2]))
         )
         if self.resize == "stretch":
             return n_in / (hi - lo), -lo * n_in / (hi - lo), lo, hi, flipped
         assert self.src_hw is not None
-        cw = [(self.crop_box[3] - self.crop_box[1]) if self.crop_box else 1.0, (self.crop_box[2] - self.crop_box[0]) if self.crop_box else 1.0]
+        cw = [
+            (self.crop_box[3] - self.crop_box[1]) if self.crop_box else 1.0,
+            (self.crop_box[2] - self.crop_box[0]) if self.crop_box else 1.0,
+        ]
         content = [self.src_hw[0] * cw[0], self.src_hw[1] * cw[1]]  # cropped frame size in source pixels
         ratios = [self.input_hw[0] / content[0], self.input_hw[1] / content[1]]
         s = min(ratios) if self.resize == "fit" else max(ratios)
@@ -197,5 +212,7 @@ def patch_distributions(
     """Several cameras: {camera: heatmaps (..., h, w)} -> {camera: (dist (..., n_patches), valid (...))}."""
     missing = sorted(set(heatmaps) - set(geometries))
     if missing:
-        raise KeyError(f"no image geometry for camera(s) {missing}; geometries exist for {sorted(geometries)}")
+        raise KeyError(
+            f"no image geometry for camera(s) {missing}; geometries exist for {sorted(geometries)}"
+        )
     return {cam: patch_distribution(h, geometries[cam], eps=eps) for cam, h in heatmaps.items()}

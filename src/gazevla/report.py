@@ -62,7 +62,10 @@ def paired_tests(records: list[dict[str, Any]], reference: str = "baseline") -> 
             x, y = [outcomes[k] for k in common], [ref[k] for k in common]
             m = mcnemar_exact(x, y)
             out[f"{arm} vs {reference} | {cond}"] = {
-                "pairs": len(common), f"{arm}_only": m["a_only"], f"{reference}_only": m["b_only"], "mcnemar_p": m["p_value"],
+                "pairs": len(common),
+                f"{arm}_only": m["a_only"],
+                f"{reference}_only": m["b_only"],
+                "mcnemar_p": m["p_value"],
                 "fisher_p": fisher_exact(sum(x), len(x), sum(y), len(y)),
             }
     return out
@@ -75,12 +78,19 @@ def convergence(curves: dict[str, dict[int, tuple[int, int]]], threshold: float)
     for arm, pts in curves.items():
         steps = sorted(pts)
         rates = [pts[s][0] / pts[s][1] for s in steps]
-        out["arms"][arm] = {"steps": steps, "rates": rates, "ci95": [list(wilson(*pts[s])) for s in steps], "steps_to_threshold": steps_to_threshold(steps, rates, threshold)}
+        out["arms"][arm] = {
+            "steps": steps,
+            "rates": rates,
+            "ci95": [list(wilson(*pts[s])) for s in steps],
+            "steps_to_threshold": steps_to_threshold(steps, rates, threshold),
+        }
     if "baseline" in out["arms"] and out["arms"]["baseline"]["rates"]:
         final = out["arms"]["baseline"]["rates"][-1]
         out["baseline_final"] = final
         for c in out["arms"].values():
-            c["steps_to_baseline_final"] = steps_to_threshold(c["steps"], c["rates"], final) if final > 0 else None
+            c["steps_to_baseline_final"] = (
+                steps_to_threshold(c["steps"], c["rates"], final) if final > 0 else None
+            )
     return out
 
 
@@ -120,7 +130,9 @@ def plot_success(table: dict[str, dict[str, dict[str, Any]]], path: Path) -> Pat
     return path
 
 
-def plot_convergence(conv: dict[str, Any], losses: dict[str, list[tuple[int, float, float | None]]], path: Path) -> Path:
+def plot_convergence(
+    conv: dict[str, Any], losses: dict[str, list[tuple[int, float, float | None]]], path: Path
+) -> Path:
     plt = _plt()
     fig, axes = plt.subplots(1, 3, figsize=(11, 3.2))
     for arm, c in conv["arms"].items():
@@ -137,7 +149,9 @@ def plot_convergence(conv: dict[str, Any], losses: dict[str, list[tuple[int, flo
         if kl:
             axes[2].plot(*zip(*kl), label=arm)
     axes[1].set(xlabel="training step", ylabel="action loss (L1, normalised)", title="training loss")
-    axes[2].set(xlabel="training step", ylabel="KL(gaze || attention), held-out batch", title="attention-gaze KL")
+    axes[2].set(
+        xlabel="training step", ylabel="KL(gaze || attention), held-out batch", title="attention-gaze KL"
+    )
     for ax in axes:
         ax.legend(fontsize=8)
     fig.tight_layout()
@@ -152,11 +166,17 @@ def plot_attention(panels: list[dict[str, Any]], columns: list[str], path: Path)
 
     plt = _plt()
     cols = ["observation", *columns]
-    fig, axes = plt.subplots(len(panels), len(cols), figsize=(2.1 * len(cols), 2.2 * len(panels)), squeeze=False)
+    fig, axes = plt.subplots(
+        len(panels), len(cols), figsize=(2.1 * len(cols), 2.2 * len(panels)), squeeze=False
+    )
     for i, row in enumerate(panels):
         for j, col in enumerate(cols):
             ax = axes[i, j]
-            img = row["frame"] if col == "observation" or row.get(col) is None else overlay(row["frame"], row[col])
+            img = (
+                row["frame"]
+                if col == "observation" or row.get(col) is None
+                else overlay(row["frame"], row[col])
+            )
             ax.imshow(img)
             ax.set_xticks([])
             ax.set_yticks([])
@@ -195,38 +215,97 @@ def markdown(report: dict[str, Any]) -> str:
         "|---|" + "---|" * len(conds),
     ]
     lines += [f"| {a} | " + " | ".join(fmt_cell(t[a][c]) for c in conds) + " |" for a in arms]
-    lines += ["", "Per task (clean):", "", "| arm | " + " | ".join(report["tasks"]) + " |", "|---|" + "---|" * len(report["tasks"])]
+    lines += [
+        "",
+        "Per task (clean):",
+        "",
+        "| arm | " + " | ".join(report["tasks"]) + " |",
+        "|---|" + "---|" * len(report["tasks"]),
+    ]
     for a in arms:
         pt = t[a]["clean"]["per_task"]
-        lines.append(f"| {a} | " + " | ".join(f"{pt[k]['successes']}/{pt[k]['n']}" for k in report["tasks"]) + " |")
-    lines += ["", "Drop from clean (success rate points):", "", "| arm | " + " | ".join(conds[1:]) + " |", "|---|" + "---|" * max(1, len(conds) - 1)]
-    lines += [f"| {a} | " + " | ".join(f"{t[a][c]['drop_from_clean']:+.2f}" for c in conds[1:]) + " |" for a in arms]
+        lines.append(
+            f"| {a} | " + " | ".join(f"{pt[k]['successes']}/{pt[k]['n']}" for k in report["tasks"]) + " |"
+        )
+    lines += [
+        "",
+        "Drop from clean (success rate points):",
+        "",
+        "| arm | " + " | ".join(conds[1:]) + " |",
+        "|---|" + "---|" * max(1, len(conds) - 1),
+    ]
+    lines += [
+        f"| {a} | " + " | ".join(f"{t[a][c]['drop_from_clean']:+.2f}" for c in conds[1:]) + " |" for a in arms
+    ]
     if report.get("paired"):
-        lines += ["", "## Paired comparisons (same setups; exact McNemar on discordant episodes, Fisher on counts)", "",
-                  "| comparison | condition | pairs | arm only | baseline only | McNemar p | Fisher p |", "|---|---|---|---|---|---|---|"]
+        lines += [
+            "",
+            "## Paired comparisons (same setups; exact McNemar on discordant episodes, Fisher on counts)",
+            "",
+            "| comparison | condition | pairs | arm only | baseline only | McNemar p | Fisher p |",
+            "|---|---|---|---|---|---|---|",
+        ]
         for k, v in report["paired"].items():
             comparison, condition = k.split(" | ", 1)
             vals = list(v.values())
-            lines.append(f"| {comparison} | {condition} | {vals[0]} | {vals[1]} | {vals[2]} | {v['mcnemar_p']:.3f} | {v['fisher_p']:.3f} |")
+            lines.append(
+                f"| {comparison} | {condition} | {vals[0]} | {vals[1]} | {vals[2]} | {v['mcnemar_p']:.3f} | {v['fisher_p']:.3f} |"
+            )
     lines += ["", "## What the numbers say", "", *report["verdict"], ""]
     if report.get("convergence"):
         conv = report["convergence"]
-        lines += ["## Convergence (clean success at checkpoints)", "", "| arm | " + " | ".join(str(s) for s in next(iter(conv["arms"].values()))["steps"]) + " | steps to "
-                  f"{conv['threshold']:.2f} | steps to baseline's final |", "|---|" + "---|" * (len(next(iter(conv["arms"].values()))["steps"]) + 2)]
+        lines += [
+            "## Convergence (clean success at checkpoints)",
+            "",
+            "| arm | "
+            + " | ".join(str(s) for s in next(iter(conv["arms"].values()))["steps"])
+            + " | steps to "
+            f"{conv['threshold']:.2f} | steps to baseline's final |",
+            "|---|" + "---|" * (len(next(iter(conv["arms"].values()))["steps"]) + 2),
+        ]
         for a, c in conv["arms"].items():
-            lines.append(f"| {a} | " + " | ".join(f"{r:.2f}" for r in c["rates"]) + f" | {c['steps_to_threshold']} | {c.get('steps_to_baseline_final')} |")
+            lines.append(
+                f"| {a} | "
+                + " | ".join(f"{r:.2f}" for r in c["rates"])
+                + f" | {c['steps_to_threshold']} | {c.get('steps_to_baseline_final')} |"
+            )
         lines.append("")
     if report.get("alignment"):
         al = report["alignment"]
-        keys = [k for k in ("gaze_kl", "gaze_cc", "gaze_sim", "gaze_nss", "gaze_auc_judd", "object_mass", "object_mass_chance") if any(k in v for v in al.values())]
-        lines += ["## Attention vs gaze on held-out frames (unseen setups)", "", "| arm | " + " | ".join(keys) + " |", "|---|" + "---|" * len(keys)]
+        keys = [
+            k
+            for k in (
+                "gaze_kl",
+                "gaze_cc",
+                "gaze_sim",
+                "gaze_nss",
+                "gaze_auc_judd",
+                "object_mass",
+                "object_mass_chance",
+            )
+            if any(k in v for v in al.values())
+        ]
+        lines += [
+            "## Attention vs gaze on held-out frames (unseen setups)",
+            "",
+            "| arm | " + " | ".join(keys) + " |",
+            "|---|" + "---|" * len(keys),
+        ]
         for a, v in al.items():
             lines.append(f"| {a} | " + " | ".join(f"{v[k]:.3f}" if k in v else "-" for k in keys) + " |")
-        lines += ["", "KL: lower is closer to gaze; CC, SIM, NSS, AUC: higher is closer; object_mass: attention on the 3x3 patches "
-                  "around the task object (chance: object_mass_chance).", ""]
+        lines += [
+            "",
+            "KL: lower is closer to gaze; CC, SIM, NSS, AUC: higher is closer; object_mass: attention on the 3x3 patches "
+            "around the task object (chance: object_mass_chance).",
+            "",
+        ]
     lines += ["## Figures", ""] + [f"![{k}]({v})" for k, v in report["figures"].items()] + [""]
     if report.get("videos"):
-        lines += ["Videos (policy view | attention overlay): " + ", ".join(f"[{Path(v).name}]({v})" for v in report["videos"][:12]), ""]
+        lines += [
+            "Videos (policy view | attention overlay): "
+            + ", ".join(f"[{Path(v).name}]({v})" for v in report["videos"][:12]),
+            "",
+        ]
     lines += ["Stage times (s): " + ", ".join(f"{k} {v:.0f}" for k, v in report["stage_times_s"].items()), ""]
     return "\n".join(lines)
 
@@ -243,10 +322,14 @@ def verdict(success: dict[str, Any], reference: str = "baseline") -> list[str]:
             r = success[reference][cond]
             diff = c["rate"] - r["rate"]
             if overlap(c["ci95"], r["ci95"]):
-                out.append(f"- {arm} vs {reference}, {cond}: {c['rate']:.2f} vs {r['rate']:.2f} ({diff:+.2f}); the 95% intervals overlap, so this budget does not decide it.")
+                out.append(
+                    f"- {arm} vs {reference}, {cond}: {c['rate']:.2f} vs {r['rate']:.2f} ({diff:+.2f}); the 95% intervals overlap, so this budget does not decide it."
+                )
             else:
                 better = "better" if diff > 0 else "worse"
-                out.append(f"- {arm} vs {reference}, {cond}: {c['rate']:.2f} vs {r['rate']:.2f} ({diff:+.2f}); the intervals do not overlap: {arm} is {better}.")
+                out.append(
+                    f"- {arm} vs {reference}, {cond}: {c['rate']:.2f} vs {r['rate']:.2f} ({diff:+.2f}); the intervals do not overlap: {arm} is {better}."
+                )
     return out
 
 
@@ -280,9 +363,21 @@ def readme_block(report: dict[str, Any], figure: str) -> str:
         "",
     ]
     if report.get("alignment"):
-        keys = [k for k in ("gaze_kl", "gaze_cc", "gaze_auc_judd", "object_mass") if any(k in v for v in report["alignment"].values())]
-        lines += ["Attention vs gaze on held-out frames:", "", "| arm | " + " | ".join(keys) + " |", "|---|" + "---|" * len(keys)]
-        lines += [f"| {a} | " + " | ".join(f"{v[k]:.3f}" if k in v else "-" for k in keys) + " |" for a, v in report["alignment"].items()]
+        keys = [
+            k
+            for k in ("gaze_kl", "gaze_cc", "gaze_auc_judd", "object_mass")
+            if any(k in v for v in report["alignment"].values())
+        ]
+        lines += [
+            "Attention vs gaze on held-out frames:",
+            "",
+            "| arm | " + " | ".join(keys) + " |",
+            "|---|" + "---|" * len(keys),
+        ]
+        lines += [
+            f"| {a} | " + " | ".join(f"{v[k]:.3f}" if k in v else "-" for k in keys) + " |"
+            for a, v in report["alignment"].items()
+        ]
         lines.append("")
     lines += [*report["verdict"], "", f"![attention]({figure})", ""]
     return "\n".join(lines)

@@ -64,10 +64,14 @@ def test_probe_returns_exact_softmax_rows_and_output_is_unchanged():
         out = model(x, mask)
     assert torch.equal(out, ref_out)  # bit-identical
     for layer in (1, 2):
-        torch.testing.assert_close(probe.rows(layer), _reference_rows(model, x, layer, slice(7, 10), [0, 1, 2, 3], mask))
+        torch.testing.assert_close(
+            probe.rows(layer), _reference_rows(model, x, layer, slice(7, 10), [0, 1, 2, 3], mask)
+        )
     assert probe.layers == [1, 2]
     dist = probe.distribution()
-    expected = torch.stack([_reference_rows(model, x, i, slice(7, 10), [0, 1, 2, 3], mask).mean((1, 2)) for i in (1, 2)]).mean(0)
+    expected = torch.stack(
+        [_reference_rows(model, x, i, slice(7, 10), [0, 1, 2, 3], mask).mean((1, 2)) for i in (1, 2)]
+    ).mean(0)
     torch.testing.assert_close(dist, expected / expected.sum(-1, keepdim=True))
     torch.testing.assert_close(dist.sum(-1), torch.ones(2))
 

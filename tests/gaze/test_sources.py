@@ -32,7 +32,9 @@ def store(tmp_path):
 
 
 def test_registry_lists_builtins_and_rejects_unknown():
-    assert {"uniform", "saliency", "perturbed", "recorded", "visuomotor", "glc"} <= set(available_gaze_sources())
+    assert {"uniform", "saliency", "perturbed", "recorded", "visuomotor", "glc"} <= set(
+        available_gaze_sources()
+    )
     with pytest.raises(KeyError, match="unknown gaze source 'nope'"):
         make_gaze_source("nope")
     with pytest.raises(TypeError, match="bad parameters for gaze source 'uniform'"):
@@ -65,7 +67,9 @@ def test_priors_pipeline_resumes_and_refuses_changed_settings(store):
     make_priors(cfg, progress=False)  # resume: nothing recomputed
     assert (store.prior_dir("recorded") / "ep_000000.npz").stat().st_mtime_ns == mtime
     with pytest.raises(ValueError, match="other settings"):
-        make_priors(PriorsConfig(store=store.root, source="recorded", camera="cam", size=(8, 8)), progress=False)
+        make_priors(
+            PriorsConfig(store=store.root, source="recorded", camera="cam", size=(8, 8)), progress=False
+        )
 
 
 def test_sharded_priors_cover_every_episode_once(store):
@@ -78,9 +82,21 @@ def test_sharded_priors_cover_every_episode_once(store):
 
 @pytest.mark.parametrize("mode", ["blobs", "shuffle", "other_episode"])
 def test_perturbed_controls(store, mode):
-    make_priors(PriorsConfig(store=store.root, source="recorded", camera="cam", size=(16, 16)), progress=False)
+    make_priors(
+        PriorsConfig(store=store.root, source="recorded", camera="cam", size=(16, 16)), progress=False
+    )
     params = (f"mode={mode}", "base=recorded", "block=4")
-    make_priors(PriorsConfig(store=store.root, source="perturbed", source_params=params, name=f"p_{mode}", camera="cam", size=(16, 16)), progress=False)
+    make_priors(
+        PriorsConfig(
+            store=store.root,
+            source="perturbed",
+            source_params=params,
+            name=f"p_{mode}",
+            camera="cam",
+            size=(16, 16),
+        ),
+        progress=False,
+    )
     base, _ = store.read_prior("recorded", 0)
     pert, valid = store.read_prior(f"p_{mode}", 0)
     assert valid.any() and np.allclose(pert[valid].sum((1, 2)), 1, atol=1e-5)

@@ -19,7 +19,9 @@ from gazevla.glc.data import (
 
 @pytest.fixture(scope="module")
 def store(tmp_path_factory):
-    return write_synthetic_gaze_store(tmp_path_factory.mktemp("glc") / "store", episodes=4, length=10, size=32, camera="cam", tasks=1)
+    return write_synthetic_gaze_store(
+        tmp_path_factory.mktemp("glc") / "store", episodes=4, length=10, size=32, camera="cam", tasks=1
+    )
 
 
 def test_split_is_deterministic_and_per_task(tmp_path):
@@ -36,7 +38,9 @@ def test_dataset_items_and_gaze(store):
     clip, gaze, valid = ds[1]  # anchor frame 2 of episode 0
     assert clip.shape == (3, 8, 96, 96) and clip.dtype.is_floating_point is False
     pts, ok = episode_gaze_points(store.read(0), "cam", "recorded")
-    np.testing.assert_allclose(gaze[4].numpy(), pts[2], atol=1e-6)  # square frames: crop coords = frame coords
+    np.testing.assert_allclose(
+        gaze[4].numpy(), pts[2], atol=1e-6
+    )  # square frames: crop coords = frame coords
     assert valid.all() and ok.all()
     with pytest.raises(KeyError, match="no recorded gaze"):
         episode_gaze_points(store.read(0), "other", "recorded")
@@ -46,10 +50,34 @@ def test_dataset_items_and_gaze(store):
 
 def test_train_and_eval_commands_write_their_outputs(store, tmp_path, capsys):
     out = tmp_path / "run"
-    args = ["train", "--store", str(store.root), "--camera", "cam", "--gaze-source", "recorded", "--out", str(out),
-            "--holdout-every", "2", "--optim.steps", "2", "--optim.batch-size", "2", "--optim.warmup-steps", "1"]
+    args = [
+        "train",
+        "--store",
+        str(store.root),
+        "--camera",
+        "cam",
+        "--gaze-source",
+        "recorded",
+        "--out",
+        str(out),
+        "--holdout-every",
+        "2",
+        "--optim.steps",
+        "2",
+        "--optim.batch-size",
+        "2",
+        "--optim.warmup-steps",
+        "1",
+    ]
     assert main(args) == 0
-    for name in ("final/model.safetensors", "final/config.json", "final/glc_train.json", "run.json", "eval.json", "train_log.jsonl"):
+    for name in (
+        "final/model.safetensors",
+        "final/config.json",
+        "final/glc_train.json",
+        "run.json",
+        "eval.json",
+        "train_log.jsonl",
+    ):
         assert (out / name).exists(), name
     info = json.loads((out / "final" / "glc_train.json").read_text())
     assert info["split"] == {"train": [0, 2], "heldout": [1, 3]} and info["steps"] == 2
@@ -58,8 +86,24 @@ def test_train_and_eval_commands_write_their_outputs(store, tmp_path, capsys):
     assert rep["episodes"] == [1, 3] and rep["scores"]["all_valid"]["glc"]["n_frames"] == 20
 
     report = tmp_path / "eval2.json"
-    assert main(["eval", "--store", str(store.root), "--checkpoint", str(out), "--mode", "centre",
-                 "--fixation-threshold", "0.05", "--out", str(report)]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--store",
+                str(store.root),
+                "--checkpoint",
+                str(out),
+                "--mode",
+                "centre",
+                "--fixation-threshold",
+                "0.05",
+                "--out",
+                str(report),
+            ]
+        )
+        == 0
+    )
     rep2 = json.loads(report.read_text())
     assert rep2["source"]["mode"] == "centre" and rep2["episodes"] == [1, 3] and "fixation" in rep2["scores"]
     for sc in rep2["scores"]["all_valid"].values():

@@ -54,7 +54,9 @@ def test_clip_indices_centre_position_and_edge_repetition():
     assert raw.tolist() == [-8, -6, -4, -2, 0, 2, 4, 6]
 
 
-@pytest.mark.parametrize("T,stride,hop", [(1, 1, 4), (7, 1, 4), (23, 2, 4), (40, 3, 2), (30, 2, 8), (13, 1, 1)])
+@pytest.mark.parametrize(
+    "T,stride,hop", [(1, 1, 4), (7, 1, 4), (23, 2, 4), (40, 3, 2), (30, 2, 8), (13, 1, 1)]
+)
 def test_average_anchors_cover_every_frame(T, stride, hop):
     anchors = average_anchors(T, 8, stride, hop)
     raw = clip_indices(T, anchors, 8, stride, clamp=False)
@@ -109,13 +111,17 @@ def test_non_square_frames_put_the_crop_back_into_the_frame():
     assert torch.all(out[:, :, :6] == 0) and torch.all(out[:, :, 18:] == 0) and torch.all(out[:, :, 6:18] > 0)
     ep = synthetic_gaze_episode(length=3, size=48, camera="cam")
     ep.frames["cam"] = np.ascontiguousarray(np.concatenate([ep.frames["cam"]] * 2, axis=2))  # 48 x 96
-    heat, valid = make_gaze_source("glc", checkpoint="random", config="small", mode="centre")(ep, "cam", (12, 24))
+    heat, valid = make_gaze_source("glc", checkpoint="random", config="small", mode="centre")(
+        ep, "cam", (12, 24)
+    )
     assert valid.all() and np.allclose(heat.sum((1, 2)), 1, atol=1e-5) and (heat[:, :, :6] == 0).all()
 
 
 def test_describe_records_random_weights_and_round_trips_json(source):
     d = source.describe()
-    assert d["checkpoint"] == "random" and d["config"] == "small" and d["mode"] == "centre" and d["stride"] == 2
+    assert (
+        d["checkpoint"] == "random" and d["config"] == "small" and d["mode"] == "centre" and d["stride"] == 2
+    )
     assert json.loads(json.dumps(d)) == d
 
 

@@ -51,7 +51,9 @@ def _positions(index: Index, length: int, device: torch.device) -> Tensor:
         return torch.arange(length, device=device)[index]
     t = torch.as_tensor(index, dtype=torch.long, device=device)
     if t.numel() and (t.min() < 0 or t.max() >= length):
-        raise IndexError(f"token positions {t.min().item()}..{t.max().item()} out of range for {length} tokens")
+        raise IndexError(
+            f"token positions {t.min().item()}..{t.max().item()} out of range for {length} tokens"
+        )
     return t
 
 
@@ -91,7 +93,9 @@ class AttentionProbe:
     attn = probe.distribution()   # (B, n_keys), rows sum to 1, differentiable
     """
 
-    def __init__(self, model: nn.Module | None, spec: ProbeSpec, adapter: str | Callable[..., list[Any]] = "auto"):
+    def __init__(
+        self, model: nn.Module | None, spec: ProbeSpec, adapter: str | Callable[..., list[Any]] = "auto"
+    ):
         self.model = model
         self.spec = spec
         self.adapter = adapter
@@ -128,7 +132,9 @@ class AttentionProbe:
         if self.adapter == "mha":
             return attach_multihead_attention
         if self.adapter != "auto":
-            raise ValueError(f"unknown probe adapter {self.adapter!r}; use 'auto', 'tap', 'mha' or a callable")
+            raise ValueError(
+                f"unknown probe adapter {self.adapter!r}; use 'auto', 'tap', 'mha' or a callable"
+            )
         custom = getattr(self.model, "gaze_probe_adapter", None)
         if callable(custom):
             return custom()
@@ -140,14 +146,18 @@ class AttentionProbe:
     def wants(self, layer: int) -> bool:
         return self.spec.layers is None or layer in self.spec.layers
 
-    def record(self, layer: int, q: Tensor, k: Tensor, mask: Tensor | None = None, scale: float | None = None) -> None:
+    def record(
+        self, layer: int, q: Tensor, k: Tensor, mask: Tensor | None = None, scale: float | None = None
+    ) -> None:
         if not self.wants(layer):
             return
         probs = attention_rows(q, k, self.spec.queries, mask, scale)  # (B, H, nq, Tk)
         keys = self.spec.keys
         if isinstance(keys, Tensor) and keys.ndim == 2:
             if keys.shape[0] != probs.shape[0]:
-                raise ValueError(f"per-sample key positions have batch {keys.shape[0]}, attention has {probs.shape[0]}")
+                raise ValueError(
+                    f"per-sample key positions have batch {keys.shape[0]}, attention has {probs.shape[0]}"
+                )
             idx = keys.to(probs.device)[:, None, None, :].expand(-1, probs.shape[1], probs.shape[2], -1)
             sel = torch.gather(probs, -1, idx)
         else:
@@ -178,7 +188,9 @@ class AttentionProbe:
         if self.spec.layers is not None:
             missing = sorted(set(self.spec.layers) - set(self._rows))
             if missing:
-                raise RuntimeError(f"the attention probe saw no attention on layer(s) {missing}; saw {self.layers}")
+                raise RuntimeError(
+                    f"the attention probe saw no attention on layer(s) {missing}; saw {self.layers}"
+                )
 
     def distribution(self, eps: float = 1e-12) -> Tensor:
         """(B, n_keys): attention averaged over heads, queries and layers, renormalised over the keys."""
@@ -215,11 +227,19 @@ def _mha_mask(attn_mask: Tensor | None, key_padding_mask: Tensor | None, B: int,
     means 'not allowed')."""
     out = None
     if attn_mask is not None:
-        m = attn_mask if attn_mask.dtype != torch.bool else torch.zeros_like(attn_mask, dtype=torch.float32).masked_fill(attn_mask, float("-inf"))
+        m = (
+            attn_mask
+            if attn_mask.dtype != torch.bool
+            else torch.zeros_like(attn_mask, dtype=torch.float32).masked_fill(attn_mask, float("-inf"))
+        )
         out = m.reshape(B, H, *m.shape[-2:]) if m.ndim == 3 else m[None, None]
     if key_padding_mask is not None:
         kp = key_padding_mask
-        kp = torch.zeros_like(kp, dtype=torch.float32).masked_fill(kp, float("-inf")) if kp.dtype == torch.bool else kp.float()
+        kp = (
+            torch.zeros_like(kp, dtype=torch.float32).masked_fill(kp, float("-inf"))
+            if kp.dtype == torch.bool
+            else kp.float()
+        )
         kp = kp[:, None, None, :]
         out = kp if out is None else out + kp
     return out
@@ -233,7 +253,9 @@ def attach_multihead_attention(model: nn.Module, probe: AttentionProbe) -> list[
         if not isinstance(m, nn.MultiheadAttention):
             continue
         if m.bias_k is not None or m.add_zero_attn:
-            raise NotImplementedError("probing nn.MultiheadAttention with add_bias_kv/add_zero_attn is not supported")
+            raise NotImplementedError(
+                "probing nn.MultiheadAttention with add_bias_kv/add_zero_attn is not supported"
+            )
 
         def hook(mod: nn.MultiheadAttention, args: tuple, kwargs: dict, _layer: int = layer) -> None:
             if not probe.wants(_layer):

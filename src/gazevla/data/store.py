@@ -62,7 +62,9 @@ class Episode:
             raise ValueError(f"episode {self.index} has no camera frames")
         for cam, fr in self.frames.items():
             if fr.ndim != 4 or fr.shape[-1] != 3 or fr.dtype != np.uint8:
-                raise ValueError(f"camera {cam!r}: frames must be uint8 (T, H, W, 3), got {fr.dtype} {fr.shape}")
+                raise ValueError(
+                    f"camera {cam!r}: frames must be uint8 (T, H, W, 3), got {fr.dtype} {fr.shape}"
+                )
             if fr.shape[0] != T:
                 raise ValueError(f"camera {cam!r} has {fr.shape[0]} frames but the episode has {T} actions")
         for name, arr in [("state", self.state), *self.extras.items()]:
@@ -81,7 +83,9 @@ class EpisodeStore:
         marker = self.root / "store.json"
         if not marker.exists():
             if not create:
-                raise FileNotFoundError(f"{self.root} is not an episode store (no store.json); create it first")
+                raise FileNotFoundError(
+                    f"{self.root} is not an episode store (no store.json); create it first"
+                )
             atomic_write_json(marker, {"format": FORMAT, "version": VERSION})
         info = json.loads(marker.read_text())
         if info.get("format") != FORMAT or info.get("version") != VERSION:
@@ -148,7 +152,9 @@ class EpisodeStore:
         missing = [c for c in cams if c not in meta["cameras"]]
         if missing:
             raise KeyError(f"episode {index} has no camera(s) {missing}; it has {list(meta['cameras'])}")
-        extras = {p.name[len("extra.") : -len(".npy")]: np.load(p, mmap_mode=mode) for p in d.glob("extra.*.npy")}
+        extras = {
+            p.name[len("extra.") : -len(".npy")]: np.load(p, mmap_mode=mode) for p in d.glob("extra.*.npy")
+        }
         return Episode(
             task=meta["task"],
             instruction=meta["instruction"],
@@ -188,7 +194,9 @@ class EpisodeStore:
         """Store an episode's priors: heatmaps (T, h, w) summing to 1 per valid frame, valid (T,) bool."""
         T = self.meta(index)["length"]
         if heatmaps.ndim != 3 or heatmaps.shape[0] != T or valid.shape != (T,):
-            raise ValueError(f"priors for episode {index} must be (T={T}, h, w) + ({T},), got {heatmaps.shape}, {valid.shape}")
+            raise ValueError(
+                f"priors for episode {index} must be (T={T}, h, w) + ({T},), got {heatmaps.shape}, {valid.shape}"
+            )
         if not np.isfinite(heatmaps).all() or (heatmaps < 0).any():
             raise ValueError(f"priors for episode {index} contain NaN, inf or negative values")
         with atomic_path(self.prior_dir(name) / f"ep_{index:06d}.npz") as tmp, open(tmp, "wb") as f:

@@ -34,7 +34,9 @@ class AggregationConfig:
 
     def __post_init__(self) -> None:
         if self.past < 0 or self.future < 0:
-            raise ValueError(f"past and future must be >= 0 frames, got past={self.past}, future={self.future}")
+            raise ValueError(
+                f"past and future must be >= 0 frames, got past={self.past}, future={self.future}"
+            )
         if self.kernel not in ("uniform", "gaussian", "exponential"):
             raise ValueError(f"unknown kernel {self.kernel!r}; use uniform, gaussian or exponential")
         if self.sigma <= 0 or self.tau <= 0:
@@ -56,7 +58,9 @@ class AggregationConfig:
         return cls(past=0, future=0)
 
 
-def aggregate(heatmaps: Tensor, valid: Tensor | None = None, cfg: AggregationConfig | None = None) -> tuple[Tensor, Tensor]:
+def aggregate(
+    heatmaps: Tensor, valid: Tensor | None = None, cfg: AggregationConfig | None = None
+) -> tuple[Tensor, Tensor]:
     """Aggregate an episode's per-frame heatmaps over time.
 
     Args:
@@ -76,7 +80,9 @@ def aggregate(heatmaps: Tensor, valid: Tensor | None = None, cfg: AggregationCon
         raise ValueError("cannot aggregate an empty episode (T = 0)")
     ok = check_heatmaps(heatmaps, valid)
     totals = heatmaps.flatten(1).sum(1).clamp_min(1e-30)
-    maps = torch.where(ok[:, None, None], heatmaps / totals[:, None, None], torch.zeros_like(heatmaps)).double()
+    maps = torch.where(
+        ok[:, None, None], heatmaps / totals[:, None, None], torch.zeros_like(heatmaps)
+    ).double()
     w = cfg.weights()
     out = torch.zeros_like(maps)
     norm = torch.zeros(T, dtype=torch.float64)
@@ -90,7 +96,9 @@ def aggregate(heatmaps: Tensor, valid: Tensor | None = None, cfg: AggregationCon
         out[lo:hi] += w[k] * maps[src]
         norm[lo:hi] += w[k] * okd[src]
     out_ok = norm > 0
-    out = torch.where(out_ok[:, None, None], out / norm.clamp_min(1e-300)[:, None, None], torch.zeros_like(out))
+    out = torch.where(
+        out_ok[:, None, None], out / norm.clamp_min(1e-300)[:, None, None], torch.zeros_like(out)
+    )
     return out.float(), out_ok
 
 

@@ -82,14 +82,18 @@ def make_priors(cfg: PriorsConfig, rank: int = 0, world: int = 1, progress: bool
     existing = store.prior_dir(name) / "prior.json"
     if existing.exists() and not cfg.overwrite:
         old = store.prior_info(name)
-        if {k: old.get(k) for k in record if k != "gazevla_version"} != {k: v for k, v in record.items() if k != "gazevla_version"}:
+        if {k: old.get(k) for k in record if k != "gazevla_version"} != {
+            k: v for k, v in record.items() if k != "gazevla_version"
+        }:
             raise ValueError(
                 f"priors {name!r} in {store.root} were made with other settings:\n  stored:    {old}\n  requested: {record}\n"
                 "use --overwrite to recompute them or --name to store these separately"
             )
     if rank == 0:
         store.write_prior_info(name, record)
-    todo = [i for i in store.indices() if i % world == rank and (cfg.overwrite or not store.has_prior(name, i))]
+    todo = [
+        i for i in store.indices() if i % world == rank and (cfg.overwrite or not store.has_prior(name, i))
+    ]
     skipped = len(store.indices()) // max(world, 1) - len(todo)
     if skipped > 0:
         log.info("priors %s: %d episodes already done, skipping them", name, skipped)
@@ -105,7 +109,12 @@ def main(argv: list[str] | None = None) -> int:
     from gazevla.config import parse
 
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    cfg = parse({"default": PriorsConfig}, sys.argv[1:] if argv is None else argv, prog="gazevla priors", description=__doc__ or "")
+    cfg = parse(
+        {"default": PriorsConfig},
+        sys.argv[1:] if argv is None else argv,
+        prog="gazevla priors",
+        description=__doc__ or "",
+    )
     # `accelerate launch` / torchrun set these; each process takes every world-th episode (no sync needed).
     rank, world = int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1))
     name = make_priors(cfg, rank=rank, world=world, progress=rank == 0)

@@ -129,7 +129,9 @@ def _make_source(name: str, params: Sequence[str], store: Any) -> Any:
 def _resolve_folder(checkpoint: str) -> Path | None:
     p = Path(checkpoint)
     if p.is_dir():
-        return p / "final" if (p / "final" / "config.json").exists() and not (p / "config.json").exists() else p
+        return (
+            p / "final" if (p / "final" / "config.json").exists() and not (p / "config.json").exists() else p
+        )
     return None
 
 
@@ -148,7 +150,9 @@ def _load_init(model: Any, init: str) -> None:
         load_glc_checkpoint(model, init)
 
 
-def _gaze_of(store: Any, indices: Sequence[int], camera: str, source: Any) -> tuple[np.ndarray, np.ndarray, list]:
+def _gaze_of(
+    store: Any, indices: Sequence[int], camera: str, source: Any
+) -> tuple[np.ndarray, np.ndarray, list]:
     from gazevla.glc.data import episode_gaze_points
 
     pts, valid, eps = [], [], []
@@ -200,7 +204,15 @@ def evaluate_glc(
 
     if not episodes:
         raise ValueError("no episodes to evaluate")
-    source = GLCGaze(checkpoint=checkpoint, config=config, stride=stride, mode=mode, hop=hop, batch_size=batch_size, device=device)
+    source = GLCGaze(
+        checkpoint=checkpoint,
+        config=config,
+        stride=stride,
+        mode=mode,
+        hop=hop,
+        batch_size=batch_size,
+        device=device,
+    )
     size = tuple(source.cfg.output_shape[1:])
     pts, valid, eps = _gaze_of(store, episodes, camera, gaze_source)
     preds, seconds, n_frames = [], 0.0, 0
@@ -225,7 +237,9 @@ def evaluate_glc(
     }
     subsets = {"all_valid": V}
     if fixation_threshold > 0:
-        subsets["fixation"] = np.concatenate([fixation_mask(p, v, fixation_threshold) for p, v in zip(pts, valid, strict=True)])
+        subsets["fixation"] = np.concatenate(
+            [fixation_mask(p, v, fixation_threshold) for p, v in zip(pts, valid, strict=True)]
+        )
     results: dict[str, Any] = {}
     for sub, mask in subsets.items():
         results[sub] = {"glc": _scores(pred, P, V, mask)}
@@ -262,7 +276,9 @@ def _print_report(rep: dict[str, Any]) -> None:
         for name, s in d.items():
             print(_row(name, s))
     for task, d in rep["per_task"].items():
-        print(f"  task {task:<26} GLC F1 {d['glc_f1']:.3f}  centre prior F1 {d['centre_prior_f1']:.3f}  ({d['frames']} frames)")
+        print(
+            f"  task {task:<26} GLC F1 {d['glc_f1']:.3f}  centre prior F1 {d['centre_prior_f1']:.3f}  ({d['frames']} frames)"
+        )
 
 
 # ---- commands -------------------------------------------------------------------------------------------
@@ -293,10 +309,25 @@ def train_command(cfg: GLCTrainCommand) -> dict[str, Any]:
     model.to(cfg.device)
     source = _make_source(cfg.gaze_source, cfg.gaze_params, store)
     t0 = time.perf_counter()
-    ds = StoreClipDataset(store, split["train"], cfg.camera, model.cfg.crop_size, model.cfg.num_frames, cfg.stride, cfg.clip_hop, source)
+    ds = StoreClipDataset(
+        store,
+        split["train"],
+        cfg.camera,
+        model.cfg.crop_size,
+        model.cfg.num_frames,
+        cfg.stride,
+        cfg.clip_hop,
+        source,
+    )
     gaze, gvalid = ds.gaze()
     load_s = time.perf_counter() - t0
-    log.info("glc train: %d clips from %d episodes (%.1f s to load), held out %s", len(ds), len(split["train"]), load_s, split["heldout"])
+    log.info(
+        "glc train: %d clips from %d episodes (%.1f s to load), held out %s",
+        len(ds),
+        len(split["train"]),
+        load_s,
+        split["heldout"],
+    )
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     settings = {
@@ -326,7 +357,14 @@ def train_command(cfg: GLCTrainCommand) -> dict[str, Any]:
     print(f"GLC ({cfg.config}) trained to step {result['step']} in {train_s:.0f} s; model written to {final}")
     if cfg.evaluate and split["heldout"]:
         rep = evaluate_glc(
-            store, str(final), split["heldout"], split["train"], cfg.camera, source, stride=cfg.stride, device=cfg.device
+            store,
+            str(final),
+            split["heldout"],
+            split["train"],
+            cfg.camera,
+            source,
+            stride=cfg.stride,
+            device=cfg.device,
         )
         atomic_write_json(out / "eval.json", rep)
         _print_report(rep)
@@ -355,7 +393,9 @@ def eval_command(cfg: GLCEvalCommand) -> dict[str, Any]:
     stride = cfg.stride or info.get("stride", 2)
     if cfg.episodes:
         episodes = sorted(set(cfg.episodes))
-        train_eps = info.get("split", {}).get("train") or [i for i in store.indices() if i not in set(episodes)]
+        train_eps = info.get("split", {}).get("train") or [
+            i for i in store.indices() if i not in set(episodes)
+        ]
     elif info.get("split"):
         episodes, train_eps = info["split"]["heldout"], info["split"]["train"]
     else:
@@ -404,7 +444,9 @@ def main(argv: list[str] | None = None) -> int:
     if sub == "train":
         train_command(parse(_train_presets(), rest, prog="gazevla glc train", description=__doc__ or ""))
     elif sub == "eval":
-        eval_command(parse({"default": GLCEvalCommand}, rest, prog="gazevla glc eval", description=__doc__ or ""))
+        eval_command(
+            parse({"default": GLCEvalCommand}, rest, prog="gazevla glc eval", description=__doc__ or "")
+        )
     else:
         print(f"gazevla glc: unknown subcommand {sub!r}\n\n{USAGE}", file=sys.stderr)
         return 2

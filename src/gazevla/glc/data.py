@@ -104,7 +104,9 @@ def preprocess_frames(frames: np.ndarray | torch.Tensor, crop_size: int) -> torc
         x = frames
     else:
         arr = np.asarray(frames)
-        x = torch.from_numpy(arr if arr.flags.writeable else arr.copy())  # memory-mapped episodes are read-only
+        x = torch.from_numpy(
+            arr if arr.flags.writeable else arr.copy()
+        )  # memory-mapped episodes are read-only
     if x.ndim != 4 or x.shape[-1] != 3:
         raise ValueError(f"frames must be (N, H, W, 3), got {tuple(x.shape)}")
     x = x.permute(0, 3, 1, 2).float()
@@ -158,7 +160,9 @@ def episode_gaze_points(
         name = f"{key}.{camera}"
         if name not in episode.extras:
             have = sorted(k for k in episode.extras if k.startswith("gaze"))
-            raise KeyError(f"episode {episode.index} has no recorded gaze {name!r} (gaze extras: {have or 'none'})")
+            raise KeyError(
+                f"episode {episode.index} has no recorded gaze {name!r} (gaze extras: {have or 'none'})"
+            )
         pts = np.asarray(episode.extras[name], dtype=np.float32).reshape(T, 2)
         valid = np.ones(T, bool)
         if f"gaze_valid.{camera}" in episode.extras:
@@ -199,7 +203,9 @@ def fixation_mask(points: np.ndarray, valid: np.ndarray, max_move: float) -> np.
 # ---- splits --------------------------------------------------------------------------------------------
 
 
-def split_episodes(store: EpisodeStore, holdout_every: int = 5, holdout: Sequence[int] = ()) -> dict[str, list[int]]:
+def split_episodes(
+    store: EpisodeStore, holdout_every: int = 5, holdout: Sequence[int] = ()
+) -> dict[str, list[int]]:
     """Deterministic train / held-out split by episode index.
 
     `holdout` lists the held-out indices explicitly; otherwise, within each task (episodes sorted by
@@ -218,7 +224,9 @@ def split_episodes(store: EpisodeStore, holdout_every: int = 5, holdout: Sequenc
         by_task: dict[str, list[int]] = {}
         for i in indices:
             by_task.setdefault(store.meta(i)["task"], []).append(i)
-        held = sorted(i for eps in by_task.values() for r, i in enumerate(eps) if r % holdout_every == holdout_every - 1)
+        held = sorted(
+            i for eps in by_task.values() for r, i in enumerate(eps) if r % holdout_every == holdout_every - 1
+        )
     return {"train": [i for i in indices if i not in set(held)], "heldout": held}
 
 
@@ -297,7 +305,12 @@ _COLOURS = np.array([[230, 40, 40], [40, 200, 60], [50, 90, 230], [230, 210, 40]
 
 
 def synthetic_gaze_episode(
-    length: int = 48, size: int = 96, camera: str = "cam", seed: int = 0, n_objects: int = 3, task: str = "synthetic"
+    length: int = 48,
+    size: int = 96,
+    camera: str = "cam",
+    seed: int = 0,
+    n_objects: int = 3,
+    task: str = "synthetic",
 ) -> Episode:
     """Coloured squares drifting (bouncing) over a textured background; the gaze follows the red one
     (object 0, drawn on top); its start is random, so a centre prior is a poor guess.
@@ -333,12 +346,22 @@ def synthetic_gaze_episode(
 
 
 def write_synthetic_gaze_store(
-    root: str | Path, episodes: int = 10, length: int = 48, size: int = 96, camera: str = "cam", seed: int = 0, tasks: int = 1
+    root: str | Path,
+    episodes: int = 10,
+    length: int = 48,
+    size: int = 96,
+    camera: str = "cam",
+    seed: int = 0,
+    tasks: int = 1,
 ) -> EpisodeStore:
     """A store of `episodes` synthetic episodes (tasks `synthetic-0..`, assigned round-robin)."""
     store = EpisodeStore(root, create=True)
     for i in range(episodes):
-        store.write(synthetic_gaze_episode(length, size, camera, seed=seed * 100_003 + i, task=f"synthetic-{i % tasks}"))
+        store.write(
+            synthetic_gaze_episode(
+                length, size, camera, seed=seed * 100_003 + i, task=f"synthetic-{i % tasks}"
+            )
+        )
     return store
 
 

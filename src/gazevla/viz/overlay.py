@@ -28,7 +28,9 @@ def overlay(frame: np.ndarray, heat: np.ndarray, alpha: float = 0.55, cmap: str 
         cols = (np.arange(W) * h.shape[1] // W).clip(0, h.shape[1] - 1)
         h = h[rows][:, cols]
     span = h.max() - h.min()
-    h = (h - h.min()) / span if span > 1e-12 * max(h.max(), 1e-30) else np.zeros_like(h)  # uniform: no overlay
+    h = (
+        (h - h.min()) / span if span > 1e-12 * max(h.max(), 1e-30) else np.zeros_like(h)
+    )  # uniform: no overlay
     a = (alpha * np.sqrt(h))[..., None]
     out = (1 - a) * frame.astype(np.float64) + a * colorize(h, cmap).astype(np.float64)
     return out.clip(0, 255).astype(np.uint8)
@@ -44,5 +46,7 @@ def write_gif(path: str | Path, frames: list[np.ndarray], fps: int = 20) -> Path
         raise ValueError("no frames to write")
     imgs = [Image.fromarray(np.asarray(f)) for f in frames]
     with atomic_path(path) as tmp:
-        imgs[0].save(tmp, format="GIF", save_all=True, append_images=imgs[1:], duration=int(1000 / fps), loop=0)
+        imgs[0].save(
+            tmp, format="GIF", save_all=True, append_images=imgs[1:], duration=int(1000 / fps), loop=0
+        )
     return Path(path)

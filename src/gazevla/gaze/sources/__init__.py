@@ -26,7 +26,9 @@ class GazeSource(Protocol):
 
     name: str
 
-    def __call__(self, episode: Episode, camera: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]: ...
+    def __call__(
+        self, episode: Episode, camera: str, size: tuple[int, int]
+    ) -> tuple[np.ndarray, np.ndarray]: ...
 
     def describe(self) -> dict[str, Any]:
         """JSON-able record of the source and its parameters (stored with the priors)."""

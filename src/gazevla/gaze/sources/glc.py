@@ -54,7 +54,9 @@ def file_sha256(path: Path, limit: int | None = None) -> str:
     return h.hexdigest()[:limit] if limit else h.hexdigest()
 
 
-def load_glc_model(checkpoint: str | Path | None, config: str | None = None, seed: int = 0) -> tuple[GLC, dict[str, Any]]:
+def load_glc_model(
+    checkpoint: str | Path | None, config: str | None = None, seed: int = 0
+) -> tuple[GLC, dict[str, Any]]:
     """Build a GLC from `checkpoint` and return it (eval mode, CPU) with a provenance record.
 
     `checkpoint` is a folder written by `save_glc` / `gazevla glc train` (its `config.json` decides the
@@ -77,12 +79,16 @@ def load_glc_model(checkpoint: str | Path | None, config: str | None = None, see
         return model.eval(), {"checkpoint": "random", "seed": seed}
     path = Path(checkpoint).expanduser()
     if not path.exists():
-        raise FileNotFoundError(f"GLC checkpoint {str(path)!r} does not exist (a folder from `gazevla glc train` or an official file)")
+        raise FileNotFoundError(
+            f"GLC checkpoint {str(path)!r} does not exist (a folder from `gazevla glc train` or an official file)"
+        )
     if path.is_dir():
         if not (path / CONFIG_NAME).exists() and (path / "final" / CONFIG_NAME).exists():
             path = path / "final"
         if not (path / CONFIG_NAME).exists() or not (path / WEIGHTS_NAME).exists():
-            raise FileNotFoundError(f"{path} is not a GLC checkpoint folder (needs {CONFIG_NAME} and {WEIGHTS_NAME})")
+            raise FileNotFoundError(
+                f"{path} is not a GLC checkpoint folder (needs {CONFIG_NAME} and {WEIGHTS_NAME})"
+            )
         model = load_glc(path)
         if config is not None and model.cfg != CONFIGS[config]():
             raise ValueError(f"checkpoint {path} holds a {config_name(model.cfg)!r} GLC, not {config!r}")
@@ -194,14 +200,18 @@ class GLCGaze:
 
     def __call__(self, episode: Episode, camera: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         if camera not in episode.frames:
-            raise KeyError(f"episode {episode.index} has no camera {camera!r}; it has {sorted(episode.frames)}")
+            raise KeyError(
+                f"episode {episode.index} has no camera {camera!r}; it has {sorted(episode.frames)}"
+            )
         frames = episode.frames[camera]
         maps, _ = self.predict(frames)
         H, W = frames.shape[1:3]
         out = to_frame(maps, (H, W), self.cfg.crop_size, tuple(size))
         total = out.flatten(1).sum(1)
         valid = torch.isfinite(total) & (total > 0)
-        out = torch.where(valid[:, None, None], out / total.clamp_min(1e-30)[:, None, None], torch.zeros_like(out))
+        out = torch.where(
+            valid[:, None, None], out / total.clamp_min(1e-30)[:, None, None], torch.zeros_like(out)
+        )
         return out.numpy().astype(np.float32), valid.numpy()
 
 
@@ -215,7 +225,9 @@ def resize_maps(maps: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
     return F.interpolate(maps[:, None], size=size, mode=mode, **kw)[:, 0].clamp_min(0)
 
 
-def to_frame(maps: torch.Tensor, frame_hw: tuple[int, int], crop_size: int, size: tuple[int, int]) -> torch.Tensor:
+def to_frame(
+    maps: torch.Tensor, frame_hw: tuple[int, int], crop_size: int, size: tuple[int, int]
+) -> torch.Tensor:
     """Maps over the centre crop -> maps over the whole frame on a `size` grid (not renormalised).
 
     Square frames: the crop is the frame, so this is a resize. Otherwise the maps are resized to the crop's

@@ -54,7 +54,9 @@ class PerturbedGaze:
             raise RuntimeError("perturbed gaze needs a store: call bind(store) before use")
         heat, valid = self.store.read_prior(self.base, index)
         if heat.shape[1:] != tuple(size):
-            raise ValueError(f"base prior {self.base!r} is {heat.shape[1:]}, requested {size}: use the same size")
+            raise ValueError(
+                f"base prior {self.base!r} is {heat.shape[1:]}, requested {size}: use the same size"
+            )
         return heat, valid
 
     def __call__(self, episode: Episode, camera: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -85,7 +87,11 @@ class PerturbedGaze:
             raise ValueError("other_episode needs at least two episodes in the store")
         perm = np.random.default_rng(self.seed).permutation(len(indices))
         pos = indices.index(episode.index)
-        other = indices[perm[pos]] if indices[perm[pos]] != episode.index else indices[perm[(pos + 1) % len(indices)]]
+        other = (
+            indices[perm[pos]]
+            if indices[perm[pos]] != episode.index
+            else indices[perm[(pos + 1) % len(indices)]]
+        )
         heat, valid = self._base(other, size)
         src = np.clip(np.round(np.linspace(0, heat.shape[0] - 1, T)).astype(int), 0, heat.shape[0] - 1)
         return heat[src], valid[src]

@@ -34,5 +34,10 @@ class RecordedGaze:
             have = sorted(k for k in episode.extras if k.startswith(self.key))
             raise KeyError(f"episode {episode.index} has no recorded gaze {key!r} (it has {have or 'none'})")
         valid = episode.extras.get(f"gaze_valid.{camera}")
-        maps, ok = heatmaps_from_points(np.asarray(episode.extras[key]), size, self.sigma * size[1], valid=None if valid is None else np.asarray(valid))
+        maps, ok = heatmaps_from_points(
+            np.asarray(episode.extras[key]),
+            size,
+            self.sigma * size[1],
+            valid=None if valid is None else np.asarray(valid),
+        )
         return maps.numpy(), ok.numpy()

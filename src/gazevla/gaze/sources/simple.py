@@ -37,7 +37,14 @@ class ContrastSaliency:
 
     name = "saliency"
 
-    def __init__(self, work_size: int = 64, centre: float = 0.02, surround: float = 0.15, blur_sigma: float = 0.03, centre_sigma: float = 0.0):
+    def __init__(
+        self,
+        work_size: int = 64,
+        centre: float = 0.02,
+        surround: float = 0.15,
+        blur_sigma: float = 0.03,
+        centre_sigma: float = 0.0,
+    ):
         if work_size < 8:
             raise ValueError(f"work_size must be >= 8 px, got {work_size}")
         if not 0 <= centre < surround:
@@ -47,14 +54,20 @@ class ContrastSaliency:
 
     def describe(self) -> dict[str, Any]:
         return {
-            "name": self.name, "work_size": self.work_size, "centre": self.centre, "surround": self.surround,
-            "blur_sigma": self.blur_sigma, "centre_sigma": self.centre_sigma,
+            "name": self.name,
+            "work_size": self.work_size,
+            "centre": self.centre,
+            "surround": self.surround,
+            "blur_sigma": self.blur_sigma,
+            "centre_sigma": self.centre_sigma,
         }
 
     def __call__(self, episode: Episode, camera: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         frames = torch.as_tensor(np.asarray(episode.frames[camera]), dtype=torch.float32)  # (T, H, W, 3)
         s = self.work_size
-        img = F.interpolate(frames.permute(0, 3, 1, 2) / 255.0, size=(s, s), mode="area").double()  # (T, 3, s, s)
+        img = F.interpolate(
+            frames.permute(0, 3, 1, 2) / 255.0, size=(s, s), mode="area"
+        ).double()  # (T, 3, s, s)
         T = img.shape[0]
         flat = img.reshape(T * 3, s, s)
         dog = _gaussian_blur(flat, self.centre * s) - _gaussian_blur(flat, self.surround * s)
@@ -65,7 +78,9 @@ class ContrastSaliency:
         out = F.interpolate(sal[:, None].float(), size=size, mode="area")[:, 0].clamp_min(0)
         total = out.flatten(1).sum(1)
         valid = torch.isfinite(total) & (total > 0)
-        out = torch.where(valid[:, None, None], out / total.clamp_min(1e-30)[:, None, None], torch.zeros_like(out))
+        out = torch.where(
+            valid[:, None, None], out / total.clamp_min(1e-30)[:, None, None], torch.zeros_like(out)
+        )
         return out.numpy(), valid.numpy()
 
 
