@@ -1,12 +1,13 @@
 """Simulation speed: Meta-World env steps/s with and without rendering, and demonstration collection throughput.
 
-    python benchmarks/bench_sim.py [--steps 600] [--episodes 6] [--workers 2]
+    python benchmarks/bench_sim.py [--steps 600] [--episodes 30] [--workers 2]
 
 Env steps are timed in this process pinned to one core (the GL renderer's threads too), with Meta-World's
 scripted expert acting (pick-place-v3, the episode restarting when it ends), for: physics only; one camera at
 128x128 and 96x96 with gazevla's render settings; and 128x128 with the original meshes (no simplification),
 for comparison. Collection runs `gazevla.envs.collect` with `--workers` processes on every core. Prints one
-JSON object, including the machine's load average before and after (other jobs on the machine slow it down).
+JSON object, including the machine's load average before and after (other jobs on the machine slow it down;
+the CPU time per step / frame does not depend on them).
 The OpenGL backend is chosen by `gazevla.envs.render.select_gl_backend` and passed explicitly.
 """
 
@@ -30,7 +31,7 @@ def env_steps_per_s(task: str, steps: int, gl_backend: str, **env_kwargs) -> dic
     for _ in range(20):  # warm-up
         env.step(expert(env.raw_obs))
     seed, n, resets, reset_s = 1, 0, 0, 0.0
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     env.reset(seed=seed)
     while n < steps:
         _, _, _, truncated, info = env.step(expert(env.raw_obs))
@@ -42,11 +43,13 @@ def env_steps_per_s(task: str, steps: int, gl_backend: str, **env_kwargs) -> dic
             reset_s += time.perf_counter() - r0
             resets += 1
     total = time.perf_counter() - t0
+    cpu = time.process_time() - c0
     env.close()
     return {
         "steps_per_s": n / total,
         "steps_per_s_excluding_resets": n / (total - reset_s),
         "reset_ms": 1000 * reset_s / max(resets, 1),
+        "cpu_ms_per_step": 1000 * cpu / n,
         "steps": n,
     }
 
@@ -55,7 +58,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--steps", type=int, default=600)
     ap.add_argument("--task", default="pick-place-v3")
-    ap.add_argument("--episodes", type=int, default=6, help="collection: episodes per task")
+    ap.add_argument("--episodes", type=int, default=30, help="collection: episodes per task (the quick preset)")
     ap.add_argument("--tasks", default="reach-v3,button-press-topdown-v3,pick-place-v3")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--image-size", type=int, default=96, help="collection image size")
@@ -111,6 +114,7 @@ def main() -> int:
             for x in (Path(tmp) / "demos" / "collect" / "attempts.jsonl").read_text().splitlines()
         ]
         rollout_s = sum(a["seconds"] for a in attempts)
+        rollout_cpu = sum(a.get("cpu_seconds", 0.0) for a in attempts)
     result["collect"] = {
         "tasks": list(tasks),
         "image_size": args.image_size,
@@ -122,8 +126,12 @@ def main() -> int:
         "episodes_per_s": report.new_episodes / wall,
         "complete": report.complete,
         "rollout_frames_per_s_per_worker": report.new_frames / rollout_s,
+        "cpu_ms_per_frame": 1000 * rollout_cpu / report.new_frames,
+        "frames_per_s_if_cores_idle": args.workers * report.new_frames / rollout_cpu,
         "note": "wall time includes starting the worker processes and building each task's environment; "
-        "rollout_frames_per_s_per_worker counts only the time inside rollouts (steady state of one worker)",
+        "rollout_frames_per_s_per_worker counts only the time inside rollouts (steady state of one worker); "
+        "frames_per_s_if_cores_idle = workers / CPU time per frame, what the rollouts would reach with every core "
+        "to themselves (the machine is shared: see load_avg)",
     }
     result["machine"]["load_avg_after"] = os.getloadavg()
     print(json.dumps(result, indent=2))

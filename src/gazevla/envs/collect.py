@@ -154,7 +154,7 @@ def rollout_expert(
     from gazevla.envs.experts import Expert
     from gazevla.envs.metaworld import ACTION_LAYOUT, STATE_LAYOUT, setup_of
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     task = env.task
     expert = expert or Expert(task, noise=action_noise)
     expert.reset(_noise_seed(task, seed))
@@ -222,7 +222,14 @@ def rollout_expert(
         extras=extras,
         meta=meta,
     )
-    summary = {"task": task, "seed": int(seed), "success": bool(success), "steps": T, "seconds": seconds}
+    summary = {
+        "task": task,
+        "seed": int(seed),
+        "success": bool(success),
+        "steps": T,
+        "seconds": seconds,
+        "cpu_seconds": time.process_time() - c0,  # this process, the renderer's threads included
+    }
     return ep, summary
 
 
