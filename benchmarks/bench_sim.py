@@ -58,7 +58,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--steps", type=int, default=600)
     ap.add_argument("--task", default="pick-place-v3")
-    ap.add_argument("--episodes", type=int, default=30, help="collection: episodes per task (the quick preset)")
+    ap.add_argument(
+        "--episodes", type=int, default=30, help="collection: episodes per task (the quick preset)"
+    )
     ap.add_argument("--tasks", default="reach-v3,button-press-topdown-v3,pick-place-v3")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--image-size", type=int, default=96, help="collection image size")
