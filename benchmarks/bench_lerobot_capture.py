@@ -1,0 +1,158 @@
+"""Training-step cost of the LeRobot plugin's gaze term (`smolvla_gaze`) against plain `smolvla` (CPU), as JSON.
+
+    ~/.cache/gazevla/lerobot-py312/bin/python benchmarks/bench_lerobot_capture.py [--steps 15] [--batch 4]
+
+Needs the LeRobot lane (Python >= 3.12 venv with lerobot 0.6.1 and the plugin, scripts/lerobot_lane.sh); under
+another interpreter without lerobot it prints {"skipped": ...} and exits 0, so benchmarks/run_all.py keeps going.
+
+Builds the tiny offline SmolVLA of tests_lerobot/ twice from the same seed (a local SmolVLM config with random
+weights, `load_vlm_weights=False`): plain `smolvla` and `smolvla_gaze` with gaze_weight 0.1 (attention capture +
+KL), on one batch of the LeRobot v3 fixture. Each step is forward + backward (grads cleared before) with the
+same noise and flow time for both modes; modes are interleaved (order alternating per step) after warm-up
+steps, and the median per-step time of each is reported. One CPU thread.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+DEFAULT_FIXTURE = Path(os.environ.get("GAZEVLA_FIXTURES", "/work/shared/fixtures")) / "lerobot_v3_tiny"
+GAZE_CAMERA = "observation.images.front"
+
+
+def build(kind: str, vlm: Path, dataset, seed: int):
+    """(policy, pre-processed batch source) for `smolvla` or `smolvla_gaze`, as tests_lerobot/conftest.py does."""
+    import torch
+    from lerobot.policies import make_policy, make_pre_post_processors
+    from lerobot.policies.smolvla.configuration_smolvla import SmolVLAConfig
+    from lerobot_policy_gazevla.configuration_smolvla_gaze import SmolVLAGazeConfig
+
+    args = dict(
+        vlm_model_name=str(vlm),
+        load_vlm_weights=False,
+        resize_imgs_with_padding=(64, 64),
+        chunk_size=5,
+        n_action_steps=5,
+        num_vlm_layers=4,
+        device="cpu",
+        push_to_hub=False,
+    )
+    if kind == "gaze":
+        cfg = SmolVLAGazeConfig(**args, gaze_weight=0.1, gaze_camera=GAZE_CAMERA)
+    else:
+        cfg = SmolVLAConfig(**args)
+    torch.manual_seed(seed)
+    policy = make_policy(cfg, ds_meta=dataset.meta)
+    pre, _ = make_pre_post_processors(cfg, dataset_stats=dataset.meta.stats)
+    policy.train()
+    return policy, pre
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--steps", type=int, default=15, help="timed steps per mode (interleaved)")
+    ap.add_argument("--warmup", type=int, default=3, help="untimed steps per mode first")
+    ap.add_argument("--batch", type=int, default=4, help="frames of the fixture in the batch")
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--fixture", type=Path, default=DEFAULT_FIXTURE)
+    a = ap.parse_args()
+
+    try:
+        import lerobot
+    except ImportError:
+        print(json.dumps({"skipped": "needs lerobot (Python >= 3.12 lane)"}))
+        return 0
+    if not (a.fixture / "meta" / "info.json").exists():
+        print(json.dumps({"skipped": f"the LeRobot v3 fixture is missing at {a.fixture}"}))
+        return 0
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    os.environ.setdefault("HF_DATASETS_OFFLINE", "1")
+
+    import torch
+    from lerobot.datasets import LeRobotDataset
+    from lerobot_policy_gazevla.testing import make_tiny_smolvlm
+
+    torch.set_num_threads(a.threads)
+    dataset = LeRobotDataset(
+        "local/lerobot_v3_tiny",
+        root=a.fixture,
+        delta_timestamps={"action": [i / 10 for i in range(5)]},
+        video_backend="pyav",
+    )
+    raw = torch.utils.data.default_collate([dataset[i] for i in range(a.batch)])
+
+    with tempfile.TemporaryDirectory() as tmp:
+        vlm = make_tiny_smolvlm(Path(tmp) / "tiny_smolvlm")
+        plain, pre_plain = build("plain", vlm, dataset, a.seed)
+        gaze, pre_gaze = build("gaze", vlm, dataset, a.seed)
+    same_init = all(
+        torch.equal(p, q)
+        for p, q in zip(plain.state_dict().values(), gaze.state_dict().values(), strict=True)
+    )
+    modes = {"plain": (plain, pre_plain(dict(raw))), "gaze": (gaze, pre_gaze(dict(raw)))}
+
+    g = torch.Generator().manual_seed(a.seed + 1)
+    noise = torch.randn(a.batch, plain.config.chunk_size, plain.config.max_action_dim, generator=g)
+    flow_t = torch.full((a.batch,), 0.5)
+
+    def step(mode: str) -> tuple[float, dict]:
+        policy, batch = modes[mode]
+        policy.zero_grad(set_to_none=True)
+        t0 = time.perf_counter()
+        loss, info = policy.forward(dict(batch), noise=noise, time=flow_t)
+        loss.backward()
+        return time.perf_counter() - t0, info
+
+    for _ in range(a.warmup):
+        for mode in modes:
+            step(mode)
+    times: dict[str, list[float]] = {m: [] for m in modes}
+    infos: dict[str, dict] = {}
+    for i in range(a.steps):
+        for mode in ("plain", "gaze") if i % 2 == 0 else ("gaze", "plain"):
+            dt, infos[mode] = step(mode)
+            times[mode].append(dt)
+
+    plain_s = statistics.median(times["plain"])
+    gaze_s = statistics.median(times["gaze"])
+    out = {
+        "step_s_plain": round(plain_s, 5),
+        "step_s_gaze": round(gaze_s, 5),
+        "ratio": round(gaze_s / plain_s, 4),
+        "threads": torch.get_num_threads(),
+        "torch": torch.__version__,
+        "lerobot": getattr(lerobot, "__version__", None) or _dist_version("lerobot"),
+        "steps": a.steps,
+        "warmup": a.warmup,
+        "batch": a.batch,
+        "same_init": same_init,
+        "gaze_kl": round(float(infos["gaze"]["loss/gaze_kl"]), 5),
+        "step_s_plain_all": [round(t, 5) for t in times["plain"]],
+        "step_s_gaze_all": [round(t, 5) for t in times["gaze"]],
+        "python": platform.python_version(),
+        "machine": f"{platform.node()} {platform.machine()} ({os.cpu_count()} cpus)",
+    }
+    print(json.dumps(out))
+    return 0
+
+
+def _dist_version(name: str) -> str | None:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(name)
+    except PackageNotFoundError:
+        return None
+
+
+if __name__ == "__main__":
+    sys.exit(main())
