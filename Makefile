@@ -12,13 +12,16 @@ setup:
 demo: setup
 	$(VENV)/bin/gazevla experiment --preset quick
 
+RUFF_PATHS := src tests benchmarks examples scripts lerobot_plugin tests_lerobot
+
 test: setup
-	$(VENV)/bin/ruff check src tests benchmarks examples scripts lerobot_plugin tests_lerobot
+	$(VENV)/bin/ruff check $(RUFF_PATHS)
+	$(VENV)/bin/ruff format --check $(RUFF_PATHS)
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 lint: setup
-	$(VENV)/bin/ruff check src tests benchmarks examples scripts lerobot_plugin tests_lerobot
-	$(VENV)/bin/ruff format --check src tests benchmarks examples scripts lerobot_plugin tests_lerobot
+	$(VENV)/bin/ruff check $(RUFF_PATHS)
+	$(VENV)/bin/ruff format --check $(RUFF_PATHS)
 
 bench: setup
 	$(PY) benchmarks/run_all.py
