@@ -365,7 +365,7 @@ def readme_block(report: dict[str, Any], figure: str) -> str:
     if report.get("alignment"):
         keys = [
             k
-            for k in ("gaze_kl", "gaze_cc", "gaze_auc_judd", "object_mass")
+            for k in ("gaze_kl", "gaze_cc", "gaze_auc_judd", "object_mass", "object_mass_chance")
             if any(k in v for v in report["alignment"].values())
         ]
         lines += [
