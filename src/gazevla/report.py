@@ -133,24 +133,27 @@ def plot_success(table: dict[str, dict[str, dict[str, Any]]], path: Path) -> Pat
 def plot_convergence(
     conv: dict[str, Any], losses: dict[str, list[tuple[int, float, float | None]]], path: Path
 ) -> Path:
+    """Success vs steps (clean), training action loss, and each gaze arm's held-out KL to its own prior."""
     plt = _plt()
+    arms = list(dict.fromkeys([*conv["arms"], *losses]))
+    color = {arm: f"C{i}" for i, arm in enumerate(arms)}  # one colour per arm in every panel
     fig, axes = plt.subplots(1, 3, figsize=(11, 3.2))
     for arm, c in conv["arms"].items():
         ci = np.array(c["ci95"])
-        axes[0].plot(c["steps"], c["rates"], marker="o", label=arm)
-        axes[0].fill_between(c["steps"], ci[:, 0], ci[:, 1], alpha=0.15)
+        axes[0].plot(c["steps"], c["rates"], marker="o", label=arm, color=color[arm])
+        axes[0].fill_between(c["steps"], ci[:, 0], ci[:, 1], alpha=0.15, color=color[arm])
     axes[0].set(xlabel="training step", ylabel="success (clean)", ylim=(0, 1), title="success vs steps")
     for arm, pts in losses.items():
         if not pts:
             continue
         s = [p[0] for p in pts]
-        axes[1].plot(s, [p[1] for p in pts], label=arm)
+        axes[1].plot(s, [p[1] for p in pts], label=arm, color=color[arm])
         kl = [(p[0], p[2]) for p in pts if p[2] is not None]
         if kl:
-            axes[2].plot(*zip(*kl), label=arm)
+            axes[2].plot(*zip(*kl), label=arm, color=color[arm])
     axes[1].set(xlabel="training step", ylabel="action loss (L1, normalised)", title="training loss")
     axes[2].set(
-        xlabel="training step", ylabel="KL(gaze || attention), held-out batch", title="attention-gaze KL"
+        xlabel="training step", ylabel="KL(own prior || attention)", title="held-out KL to the arm's prior"
     )
     for ax in axes:
         ax.legend(fontsize=8)
