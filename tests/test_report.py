@@ -104,3 +104,10 @@ def test_markdown_and_readme_block(tmp_path):
     assert "old" not in text and "| gaze | 2/2 = 1.00" in text and text.endswith("end\n")
     assert (tmp_path / "docs" / "quick-results-attention.png").exists()
     assert "attention" in readme_block(report, "f.png")
+
+
+def test_eval_worker_rejects_an_unknown_simulator():
+    from gazevla.evaluate import Worker
+
+    with pytest.raises(ValueError, match="unknown simulator 'gazebo'"):
+        Worker(max_steps=10, gl_backend=None, env="gazebo")

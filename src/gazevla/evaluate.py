@@ -3,7 +3,8 @@
     gazevla eval --checkpoints baseline=runs/a/final gaze=runs/b/final --tasks reach-v3 --episodes 20 \
         --conditions clean dim:0.7 gaussian_noise:0.5
 
-Every checkpoint ("arm") is rolled out on the same list of setup seeds per task and under every condition
+`--env libero --tasks libero_spatial` evaluates in LIBERO instead (run it with the LIBERO venv's Python:
+`bash scripts/libero_env.sh gazevla eval ...`). Every checkpoint ("arm") is rolled out on the same list of setup seeds per task and under every condition
 (a perturbation spec, `gazevla.envs.perturbations`), so arms form pairs seed by seed. Evaluation seeds start at
 `seed_start` (default 1000, i.e. Meta-World benchmark seed 20's setups), away from the setups demonstrations
 are collected on (seeds from 0). One worker process per core; each loads each checkpoint once.
@@ -22,7 +23,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from tqdm import tqdm
@@ -32,6 +33,10 @@ from gazevla.stats import mcnemar_exact, wilson
 from gazevla.utils.io import atomic_write_json
 
 log = logging.getLogger(__name__)
+
+
+# simulator name -> "module:Class" (imported in the worker only when used)
+ENVS = {"metaworld": "gazevla.envs.metaworld:MetaWorldEnv", "libero": "gazevla.envs.libero:LiberoEnv"}
 
 
 @dataclass(frozen=True)
@@ -51,6 +56,9 @@ class EvalConfig:
     """episodes per (arm, task, condition) saved as GIFs with the attention overlay (0: none)"""
     out: Path = Path("runs/eval")
     gl_backend: str | None = None
+    env: Literal["metaworld", "libero"] = "metaworld"
+    """simulator: metaworld (tasks are Meta-World task names) or libero (tasks are suites such as
+    libero_spatial or single tasks such as libero_spatial/3; needs the LIBERO extra: scripts/libero_env.sh)"""
     """MuJoCo OpenGL backend (egl | osmesa | glfw); None: respect MUJOCO_GL, else egl, else osmesa"""
 
 
@@ -83,11 +91,13 @@ class Job:
 class Worker:
     """Per-process state: loaded policies and environments, reused across jobs."""
 
-    def __init__(self, max_steps: int, gl_backend: str | None):
+    def __init__(self, max_steps: int, gl_backend: str | None, env: str = "metaworld"):
         import torch
 
         torch.set_num_threads(1)
-        self.max_steps, self.gl_backend = max_steps, gl_backend
+        if env not in ENVS:
+            raise ValueError(f"unknown simulator {env!r}; choose one of {sorted(ENVS)}")
+        self.max_steps, self.gl_backend, self.env_kind = max_steps, gl_backend, env
         self.policies: dict[str, Any] = {}
         self.envs: dict[tuple[str, str, tuple[str, ...], tuple[int, int]], Any] = {}
 
@@ -101,9 +111,12 @@ class Worker:
     def env(self, task: str, condition: str, cameras: tuple[str, ...], size: tuple[int, int]) -> Any:
         key = (task, condition, cameras, size)
         if key not in self.envs:
-            from gazevla.envs import MetaWorldEnv, parse_perturbation
+            import importlib
 
-            self.envs[key] = MetaWorldEnv(
+            from gazevla.envs import parse_perturbation
+
+            module, cls = ENVS[self.env_kind].split(":")
+            self.envs[key] = getattr(importlib.import_module(module), cls)(
                 task,
                 cameras=cameras,
                 image_size=size,
@@ -169,9 +182,9 @@ class Worker:
 _WORKER: Worker | None = None
 
 
-def _init_worker(max_steps: int, gl_backend: str | None) -> None:
+def _init_worker(max_steps: int, gl_backend: str | None, env: str = "metaworld") -> None:
     global _WORKER
-    _WORKER = Worker(max_steps, gl_backend)
+    _WORKER = Worker(max_steps, gl_backend, env)
 
 
 def _run_job(job: Job) -> dict[str, Any]:
@@ -196,15 +209,23 @@ def make_jobs(cfg: EvalConfig, arms: dict[str, Path]) -> list[Job]:
 
 
 def run_jobs(
-    jobs: list[Job], workers: int, max_steps: int, gl_backend: str | None, progress: bool = True
+    jobs: list[Job],
+    workers: int,
+    max_steps: int,
+    gl_backend: str | None,
+    progress: bool = True,
+    env: str = "metaworld",
 ) -> list[dict[str, Any]]:
     """Run rollouts in `workers` processes (spawned: MuJoCo and torch threads are not fork-safe)."""
     if workers <= 1:
-        _init_worker(max_steps, gl_backend)
+        _init_worker(max_steps, gl_backend, env)
         return [_run_job(j) for j in tqdm(jobs, desc="eval", disable=not progress)]
     # Longest jobs first would need lengths we do not know; interleave arms so workers share load evenly.
     with ProcessPoolExecutor(
-        workers, mp_context=get_context("spawn"), initializer=_init_worker, initargs=(max_steps, gl_backend)
+        workers,
+        mp_context=get_context("spawn"),
+        initializer=_init_worker,
+        initargs=(max_steps, gl_backend, env),
     ) as ex:
         return list(
             tqdm(ex.map(_run_job, jobs, chunksize=1), total=len(jobs), desc="eval", disable=not progress)
@@ -259,7 +280,7 @@ def evaluate(cfg: EvalConfig, progress: bool = True) -> dict[str, Any]:
     """Evaluate every checkpoint; writes and returns the evaluation record (eval_info.json)."""
     arms = parse_checkpoints(cfg.checkpoints)
     jobs = make_jobs(cfg, arms)
-    records = run_jobs(jobs, min(cfg.workers, len(jobs)), cfg.max_steps, cfg.gl_backend, progress)
+    records = run_jobs(jobs, min(cfg.workers, len(jobs)), cfg.max_steps, cfg.gl_backend, progress, cfg.env)
     info = {
         "config": to_dict(cfg),
         "checkpoints": {k: str(v) for k, v in arms.items()},
