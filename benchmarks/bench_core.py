@@ -10,10 +10,9 @@ from __future__ import annotations
 import argparse
 import json
 import platform
-import statistics
-import time
 
 import torch
+from _timing import median_time
 from torch import nn
 
 from gazevla import (
@@ -28,15 +27,8 @@ from gazevla import (
 )
 
 
-def timeit(fn, repeat: int = 7, warmup: int = 2) -> float:
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+def timeit(fn) -> float:
+    return median_time(fn, repeat=7, warmup=2)
 
 
 def prior_maths(T: int = 500) -> dict[str, float]:

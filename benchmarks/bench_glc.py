@@ -15,10 +15,9 @@ import argparse
 import json
 import os
 import platform
-import statistics
-import time
 
 import torch
+from _timing import median_time
 from torch.utils.flop_counter import FlopCounterMode, sdpa_flop_count
 
 from gazevla.glc import GLC, GLCConfig
@@ -32,20 +31,9 @@ def _sdpa_cpu_flops(q_shape, k_shape, v_shape, *args, out_shape=None, **kwargs) 
 _CUSTOM_FLOPS = {torch.ops.aten._scaled_dot_product_flash_attention_for_cpu: _sdpa_cpu_flops}
 
 
-def timeit(fn, repeat: int, warmup: int = 1) -> float:
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
-
-
 def matmul_peak_gflops(n: int = 2048, repeat: int = 5) -> float:
     a, b = torch.randn(n, n), torch.randn(n, n)
-    t = timeit(lambda: torch.mm(a, b), repeat=repeat, warmup=2)
+    t = median_time(lambda: torch.mm(a, b), repeat=repeat, warmup=2)
     return 2 * n**3 / t / 1e9
 
 
@@ -62,7 +50,7 @@ def bench_forward(name: str, cfg: GLCConfig, batch: int, repeat: int, peak: floa
     model = GLC(cfg).eval()
     x = torch.randn(batch, *cfg.input_shape)
     with torch.inference_mode():
-        t = timeit(lambda: model(x), repeat=repeat)
+        t = median_time(lambda: model(x), repeat=repeat)
     flops = flops_per_clip(model)
     clips_s = batch / t
     achieved = flops["total"] * clips_s / 1e9
@@ -95,7 +83,7 @@ def bench_train_step(cfg: GLCConfig, batch: int, repeat: int) -> dict:
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
         opt.step()
 
-    t = timeit(step, repeat=repeat)
+    t = median_time(step, repeat=repeat)
     return {"batch": batch, "seconds_per_step": round(t, 4), "clips_per_s": round(batch / t, 3)}
 
 

@@ -21,10 +21,10 @@ import platform
 import shutil
 import statistics
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
+from _timing import run_times
 
 from gazevla.data.hdf5 import Hdf5ImportConfig, import_hdf5
 from gazevla.data.lerobot_v3 import LeRobotImportConfig, LeRobotV3Dataset, import_lerobot
@@ -33,13 +33,7 @@ DEFAULT_FIXTURE = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / 
 
 
 def median_rate(run, frames: int, repeat: int, warmup: int = 1) -> dict[str, float]:
-    for _ in range(warmup):
-        run()
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        run()
-        times.append(time.perf_counter() - t0)
+    times = run_times(run, repeat, warmup)
     med = statistics.median(times)
     return {
         "frames": frames,
