@@ -34,17 +34,9 @@ def build(kind: str, vlm: Path, dataset, seed: int):
     from lerobot.policies import make_policy, make_pre_post_processors
     from lerobot.policies.smolvla.configuration_smolvla import SmolVLAConfig
     from lerobot_policy_gazevla.configuration_smolvla_gaze import SmolVLAGazeConfig
+    from lerobot_policy_gazevla.testing import tiny_smolvla_args
 
-    args = dict(
-        vlm_model_name=str(vlm),
-        load_vlm_weights=False,
-        resize_imgs_with_padding=(64, 64),
-        chunk_size=5,
-        n_action_steps=5,
-        num_vlm_layers=4,
-        device="cpu",
-        push_to_hub=False,
-    )
+    args = tiny_smolvla_args(vlm)
     if kind == "gaze":
         cfg = SmolVLAGazeConfig(**args, gaze_weight=0.1, gaze_camera=GAZE_CAMERA)
     else:

@@ -41,20 +41,14 @@ def dataset(dataset_root):
 
 def make_config(tiny_vlm, **kw):
     from lerobot_policy_gazevla.configuration_smolvla_gaze import SmolVLAGazeConfig
+    from lerobot_policy_gazevla.testing import tiny_smolvla_args
 
-    args = dict(
-        vlm_model_name=str(tiny_vlm),
-        load_vlm_weights=False,
-        resize_imgs_with_padding=(64, 64),
-        chunk_size=5,
-        n_action_steps=5,
-        num_vlm_layers=4,
-        device="cpu",
-        push_to_hub=False,
-        gaze_weight=1.0,
-        gaze_camera="observation.images.front",
-    )
-    args.update(kw)
+    args = {
+        **tiny_smolvla_args(tiny_vlm),
+        "gaze_weight": 1.0,
+        "gaze_camera": "observation.images.front",
+        **kw,
+    }
     return SmolVLAGazeConfig(**args)
 
 

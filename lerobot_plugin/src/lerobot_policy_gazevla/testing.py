@@ -96,3 +96,17 @@ def make_tiny_smolvlm(
     )
     proc.save_pretrained(path)
     return path
+
+
+def tiny_smolvla_args(vlm_dir: str | Path) -> dict:
+    """SmolVLA(Gaze)Config keyword arguments for a tiny offline policy on 64 px images over `vlm_dir`."""
+    return dict(
+        vlm_model_name=str(vlm_dir),
+        load_vlm_weights=False,
+        resize_imgs_with_padding=(64, 64),
+        chunk_size=5,
+        n_action_steps=5,
+        num_vlm_layers=4,
+        device="cpu",
+        push_to_hub=False,
+    )
