@@ -9,17 +9,21 @@
 `seed_start` (default 1000, i.e. Meta-World benchmark seed 20's setups), away from the setups demonstrations
 are collected on (seeds from 0). One worker process per core; each loads each checkpoint once.
 Writes `eval_info.json` (config, seeds actually used, every episode's outcome, summaries) and GIF videos
-of the first `videos` episodes per arm, task and condition with the policy's attention overlaid.
+of the first `videos` episodes per arm, task and condition with the policy's attention overlaid. Every
+finished rollout is also appended to `episodes.jsonl`; a rerun into the same `--out` reuses the rollouts
+logged there for the same checkpoint files, task, condition and seed, so a killed evaluation resumes.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 import os
 import sys
 from collections import defaultdict
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
@@ -56,10 +60,10 @@ class EvalConfig:
     """episodes per (arm, task, condition) saved as GIFs with the attention overlay (0: none)"""
     out: Path = Path("runs/eval")
     gl_backend: str | None = None
+    """MuJoCo OpenGL backend (egl | osmesa | glfw); None: respect MUJOCO_GL, else egl, else osmesa"""
     env: Literal["metaworld", "libero"] = "metaworld"
     """simulator: metaworld (tasks are Meta-World task names) or libero (tasks are suites such as
     libero_spatial or single tasks such as libero_spatial/3; needs the LIBERO extra: scripts/libero_env.sh)"""
-    """MuJoCo OpenGL backend (egl | osmesa | glfw); None: respect MUJOCO_GL, else egl, else osmesa"""
 
 
 def parse_checkpoints(items: Sequence[str]) -> dict[str, Path]:
@@ -208,6 +212,34 @@ def make_jobs(cfg: EvalConfig, arms: dict[str, Path]) -> list[Job]:
     return jobs
 
 
+def fingerprint(checkpoint: str) -> str:
+    """Names, sizes and modification times of a checkpoint folder's files: changes when it is rewritten."""
+    d = Path(checkpoint)
+    stats = [(f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in sorted(d.iterdir()) if f.is_file()]
+    return hashlib.sha256(json.dumps(stats).encode()).hexdigest()[:16]
+
+
+def job_key(job: Job, max_steps: int, env: str, prints: dict[str, str]) -> str:
+    """What makes two rollouts the same: a logged record is reused only for an identical job."""
+    ckpt = prints.setdefault(job.checkpoint, fingerprint(job.checkpoint))
+    return json.dumps([job.arm, job.checkpoint, ckpt, job.task, job.condition, job.seed, max_steps, env])
+
+
+def read_log(path: Path) -> dict[str, dict[str, Any]]:
+    """Finished rollouts from an episode log (JSON lines); a line cut short by a kill is ignored."""
+    done: dict[str, dict[str, Any]] = {}
+    if not path.exists():
+        return done
+    for line in path.read_text().splitlines():
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError:
+            log.warning("episode log %s: ignoring an unfinished line", path)
+            continue
+        done[entry["key"]] = entry["record"]
+    return done
+
+
 def run_jobs(
     jobs: list[Job],
     workers: int,
@@ -215,21 +247,53 @@ def run_jobs(
     gl_backend: str | None,
     progress: bool = True,
     env: str = "metaworld",
+    log_path: Path | None = None,
 ) -> list[dict[str, Any]]:
-    """Run rollouts in `workers` processes (spawned: MuJoCo and torch threads are not fork-safe)."""
-    if workers <= 1:
-        _init_worker(max_steps, gl_backend, env)
-        return [_run_job(j) for j in tqdm(jobs, desc="eval", disable=not progress)]
-    # Longest jobs first would need lengths we do not know; interleave arms so workers share load evenly.
-    with ProcessPoolExecutor(
-        workers,
-        mp_context=get_context("spawn"),
-        initializer=_init_worker,
-        initargs=(max_steps, gl_backend, env),
-    ) as ex:
-        return list(
-            tqdm(ex.map(_run_job, jobs, chunksize=1), total=len(jobs), desc="eval", disable=not progress)
-        )
+    """Run rollouts in `workers` processes (spawned: MuJoCo and torch threads are not fork-safe).
+
+    With `log_path`, every finished rollout is appended to that JSON-lines log and rollouts already in it
+    are not run again, so a killed evaluation resumes where it stopped. Records come back in job order."""
+    prints: dict[str, str] = {}
+    keys = [job_key(j, max_steps, env, prints) for j in jobs]
+    done = read_log(log_path) if log_path is not None else {}
+    todo = [i for i, k in enumerate(keys) if k not in done]
+    if done and todo != list(range(len(jobs))):
+        log.info("resuming evaluation: %d of %d rollouts already logged", len(jobs) - len(todo), len(jobs))
+    results: dict[int, dict[str, Any]] = {i: done[k] for i, k in enumerate(keys) if k in done}
+    sink = None
+    if log_path is not None:
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+        sink = log_path.open("a")
+
+    def record(i: int, rec: dict[str, Any]) -> None:
+        results[i] = rec
+        if sink is not None:
+            sink.write(json.dumps({"key": keys[i], "record": rec}) + "\n")
+            sink.flush()
+
+    try:
+        bar = tqdm(total=len(todo), desc="eval", disable=not progress)
+        if workers <= 1 or len(todo) <= 1:
+            _init_worker(max_steps, gl_backend, env)
+            for i in todo:
+                record(i, _run_job(jobs[i]))
+                bar.update()
+        else:
+            with ProcessPoolExecutor(
+                min(workers, len(todo)),
+                mp_context=get_context("spawn"),
+                initializer=_init_worker,
+                initargs=(max_steps, gl_backend, env),
+            ) as ex:
+                futures = {ex.submit(_run_job, jobs[i]): i for i in todo}
+                for fut in as_completed(futures):
+                    record(futures[fut], fut.result())
+                    bar.update()
+        bar.close()
+    finally:
+        if sink is not None:
+            sink.close()
+    return [results[i] for i in range(len(jobs))]
 
 
 def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
@@ -280,7 +344,10 @@ def evaluate(cfg: EvalConfig, progress: bool = True) -> dict[str, Any]:
     """Evaluate every checkpoint; writes and returns the evaluation record (eval_info.json)."""
     arms = parse_checkpoints(cfg.checkpoints)
     jobs = make_jobs(cfg, arms)
-    records = run_jobs(jobs, min(cfg.workers, len(jobs)), cfg.max_steps, cfg.gl_backend, progress, cfg.env)
+    out = Path(cfg.out)
+    records = run_jobs(
+        jobs, cfg.workers, cfg.max_steps, cfg.gl_backend, progress, cfg.env, log_path=out / "episodes.jsonl"
+    )
     info = {
         "config": to_dict(cfg),
         "checkpoints": {k: str(v) for k, v in arms.items()},
@@ -288,7 +355,7 @@ def evaluate(cfg: EvalConfig, progress: bool = True) -> dict[str, Any]:
         "episodes": records,
         "summary": summarize(records),
     }
-    atomic_write_json(Path(cfg.out) / "eval_info.json", info)
+    atomic_write_json(out / "eval_info.json", info)
     return info
 
 

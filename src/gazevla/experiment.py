@@ -2,10 +2,12 @@
 
     gazevla experiment --preset quick            # make demo: a few Meta-World tasks, ~15 min on 2 CPU cores
     gazevla experiment --preset smoke            # CI: the same code, tiny sizes
-    gazevla experiment --preset paper            # 3 training seeds per arm, 50 evaluation episodes per task
+    gazevla experiment --preset paper            # powered: 3 arms x 3 training seeds, 50 episodes per task and condition
+    gazevla experiment --preset full             # every ablation arm, 5 tasks, 128 px: for a many-core GPU machine
 
 Stages (each writes into `out/` and a marker `out/stages/<name>.json`; a rerun skips finished stages, so a
-killed run loses at most the stage it was in, and training stages resume from their last checkpoint):
+killed run loses at most the stage it was in; training resumes from its last checkpoint and evaluation
+from its episode log, episodes.jsonl):
   demos      scripted experts on training setups (seeds 0..demos_per_task-1) + held-out setups for alignment
   priors     one prior per gaze source an arm needs (the gaze source, and its perturbed controls)
   train      every arm x training seed with the same budget; arms differ only in their gaze prior
@@ -23,6 +25,7 @@ import dataclasses
 import json
 import logging
 import math
+import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -462,9 +465,30 @@ def smoke() -> ExperimentConfig:
 
 
 def paper() -> ExperimentConfig:
-    t = quick_train()
+    """The powered comparison sized for this CPU (2 cores, a couple of hours; faster with more cores): the
+    claim's three arms (baseline, gaze, perturbed gaze) x 3 training seeds, 4,000 steps of batch 32 with
+    checkpoints every 1,000 for the success-versus-steps curve, 50 unseen setups per task and condition,
+    paired by seed across arms. Resumable stage by stage; evaluation resumes episode by episode."""
     return ExperimentConfig(
         out=Path("runs/paper"),
+        demos_per_task=50,
+        heldout_per_task=5,
+        arms=("baseline", "gaze", "perturbed"),
+        train_seeds=(0, 1, 2),
+        train=replace(quick_train(), steps=4000, batch_size=32),
+        parallel=3,
+        eval=EvalConfig(episodes=50, max_steps=120, conditions=("clean", "dim:0.7", "gaussian_noise:0.5")),
+        convergence_points=4,
+        convergence_episodes=10,
+    )
+
+
+def full() -> ExperimentConfig:
+    """The wider study for a many-core machine with a GPU: 5 tasks at 128 px, every gaze-source ablation arm,
+    3 seeds x 20,000 steps, 7 lighting and noise conditions, 50 episodes per task and condition."""
+    t = quick_train()
+    return ExperimentConfig(
+        out=Path("runs/full"),
         tasks=("reach-v3", "button-press-topdown-v3", "pick-place-v3", "drawer-open-v3", "push-v3"),
         image_size=128,
         demos_per_task=50,
@@ -478,9 +502,11 @@ def paper() -> ExperimentConfig:
             optim=OptimConfig(lr=5e-4, warmup_steps=500, min_lr_frac=0.05),
             data=DataConfig(),
         ),
+        parallel=os.cpu_count() or 2,
         eval=EvalConfig(
             episodes=50,
             max_steps=200,
+            workers=os.cpu_count() or 2,
             conditions=(
                 "clean",
                 "dim:0.7",
@@ -496,7 +522,7 @@ def paper() -> ExperimentConfig:
     )
 
 
-PRESETS = {"quick": quick, "smoke": smoke, "paper": paper}
+PRESETS = {"quick": quick, "smoke": smoke, "paper": paper, "full": full}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,64 @@
+"""A killed evaluation resumes from its episode log; a rewritten checkpoint is evaluated afresh."""
+
+import pytest
+
+import gazevla.evaluate as ev
+
+
+@pytest.fixture
+def fake_rollouts(monkeypatch):
+    calls = []
+
+    def run(job):
+        if job.seed in fail_on:
+            raise KeyboardInterrupt("killed")
+        calls.append((job.arm, job.seed))
+        return {
+            "arm": job.arm,
+            "task": job.task,
+            "condition": job.condition,
+            "seed": job.seed,
+            "success": job.seed % 2 == 0,
+            "length": 7,
+        }
+
+    fail_on: set[int] = set()
+    monkeypatch.setattr(ev, "_init_worker", lambda *a, **k: None)
+    monkeypatch.setattr(ev, "_run_job", run)
+    return calls, fail_on
+
+
+def _jobs(ckpt, seeds):
+    return [ev.Job("a", str(ckpt), "reach-v3", "clean", s, None) for s in seeds]
+
+
+def test_killed_evaluation_resumes_from_log(tmp_path, fake_rollouts):
+    calls, fail_on = fake_rollouts
+    ckpt = tmp_path / "ckpt"
+    ckpt.mkdir()
+    (ckpt / "model.safetensors").write_bytes(b"weights")
+    log_path = tmp_path / "eval" / "episodes.jsonl"
+    jobs = _jobs(ckpt, range(4))
+
+    fail_on.add(3)
+    with pytest.raises(KeyboardInterrupt):
+        ev.run_jobs(jobs, 1, 10, None, progress=False, log_path=log_path)
+    assert calls == [("a", 0), ("a", 1), ("a", 2)]
+    with log_path.open("a") as f:
+        f.write('{"key": "cut sho')  # a line the kill cut short
+
+    fail_on.clear()
+    calls.clear()
+    records = ev.run_jobs(jobs, 1, 10, None, progress=False, log_path=log_path)
+    assert calls == [("a", 3)]
+    assert [r["seed"] for r in records] == [0, 1, 2, 3]
+    assert [r["success"] for r in records] == [True, False, True, False]
+
+    # Same jobs with other max_steps, or a rewritten checkpoint: nothing is reused.
+    calls.clear()
+    ev.run_jobs(jobs[:1], 1, 11, None, progress=False, log_path=log_path)
+    assert calls == [("a", 0)]
+    calls.clear()
+    (ckpt / "model.safetensors").write_bytes(b"other weights")
+    ev.run_jobs(jobs[:2], 1, 10, None, progress=False, log_path=log_path)
+    assert calls == [("a", 0), ("a", 1)]
