@@ -1,0 +1,156 @@
+"""The experiment's configuration: what an arm is, and the named presets (smoke, quick, paper, full)."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from gazevla.evaluate import EvalConfig
+from gazevla.gaze.aggregation import AggregationConfig
+from gazevla.train import DataConfig, GazeConfig, OptimConfig, TrainConfig
+from gazevla.train import quick as quick_train
+from gazevla.train import smoke as smoke_train
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    out: Path = Path("runs/experiment")
+    tasks: tuple[str, ...] = ("reach-v3", "button-press-topdown-v3")
+    camera: str = "corner2"
+    image_size: int = 96
+    demos_per_task: int = 30
+    """expert demonstrations per task, on setups 0..demos_per_task-1"""
+    heldout_per_task: int = 3
+    """expert episodes per task on unseen setups, for attention-gaze alignment only"""
+    collect_workers: int = 2
+    gaze_source: str = "visuomotor"
+    gaze_params: tuple[str, ...] = ()
+    prior_size: tuple[int, int] = (64, 64)
+    aggregation: AggregationConfig = field(default_factory=lambda: AggregationConfig(past=2, future=2))
+    arms: tuple[str, ...] = ("baseline", "gaze", "perturbed")
+    train_seeds: tuple[int, ...] = (0,)
+    train: TrainConfig = field(default_factory=quick_train)
+    parallel: int = 2
+    """training processes at once (each with threads_per_run threads); as many as runs keeps every core busy
+    to the end instead of leaving one run to train alone"""
+    threads_per_run: int = 1
+    eval: EvalConfig = field(
+        default_factory=lambda: EvalConfig(episodes=10, conditions=("clean", "dim:0.7", "gaussian_noise:0.5"))
+    )
+    convergence_points: int = 3
+    """checkpoints along training (the last is the final one) evaluated clean for the success-vs-steps curve"""
+    convergence_episodes: int = 10
+    threshold: float = 0.5
+    """success rate whose first crossing is reported as 'steps to threshold'"""
+    figure_frames: int = 4
+
+
+def arm_prior(arm: str, cfg: ExperimentConfig) -> tuple[str | None, str | None, tuple[str, ...]]:
+    """Arm -> (prior name, gaze source, source params); baseline has none."""
+    base = cfg.gaze_source
+    table: dict[str, tuple[str | None, str | None, tuple[str, ...]]] = {
+        "baseline": (None, None, ()),
+        "gaze": (base, base, cfg.gaze_params),
+        "perturbed": (f"{base}-shuffled", "perturbed", ("mode=shuffle", f"base={base}")),
+        "blobs": ("blobs", "perturbed", ("mode=blobs",)),
+        "other_episode": (f"{base}-other-episode", "perturbed", ("mode=other_episode", f"base={base}")),
+        "saliency": ("saliency", "saliency", ()),
+        "uniform": ("uniform", "uniform", ()),
+        "glc": ("glc", "glc", cfg.gaze_params),
+    }
+    if arm not in table:
+        raise KeyError(f"unknown arm {arm!r}; choose from {sorted(table)}")
+    return table[arm]
+
+
+# ----- presets ------------------------------------------------------------------------------------------------
+def quick() -> ExperimentConfig:
+    """~15 minutes on 2 CPU cores: 2 tasks, 3 arms x 1,000 steps of batch 32, 10 unseen setups per condition."""
+    return ExperimentConfig(
+        out=Path("runs/quick"),
+        train=replace(quick_train(), steps=1000, batch_size=32),
+        parallel=3,
+        eval=EvalConfig(episodes=10, max_steps=120, conditions=("clean", "dim:0.7", "gaussian_noise:0.5")),
+    )
+
+
+def smoke() -> ExperimentConfig:
+    t = smoke_train()
+    return ExperimentConfig(
+        out=Path("runs/smoke"),
+        tasks=("reach-v3",),
+        image_size=48,
+        demos_per_task=3,
+        heldout_per_task=1,
+        collect_workers=1,
+        prior_size=(32, 32),
+        train=replace(t, steps=12, gaze=GazeConfig(weight=0.1)),
+        parallel=1,
+        eval=EvalConfig(episodes=2, max_steps=15, workers=1, videos=1, conditions=("clean", "dim:0.7")),
+        convergence_points=2,
+        convergence_episodes=1,
+        figure_frames=2,
+    )
+
+
+def paper() -> ExperimentConfig:
+    """The powered comparison sized for this CPU (2 cores, a couple of hours; faster with more cores): the
+    claim's three arms (baseline, gaze, perturbed gaze) x 3 training seeds, 4,000 steps of batch 32 with
+    checkpoints every 1,000 for the success-versus-steps curve, 50 unseen setups per task and condition,
+    paired by seed across arms. Resumable stage by stage; evaluation resumes episode by episode."""
+    return ExperimentConfig(
+        out=Path("runs/paper"),
+        demos_per_task=50,
+        heldout_per_task=5,
+        arms=("baseline", "gaze", "perturbed"),
+        train_seeds=(0, 1, 2),
+        train=replace(quick_train(), steps=4000, batch_size=32),
+        parallel=3,
+        eval=EvalConfig(episodes=50, max_steps=120, conditions=("clean", "dim:0.7", "gaussian_noise:0.5")),
+        convergence_points=4,
+        convergence_episodes=10,
+    )
+
+
+def full() -> ExperimentConfig:
+    """The wider study for a many-core machine with a GPU: 5 tasks at 128 px, every gaze-source ablation arm,
+    3 seeds x 20,000 steps, 7 lighting and noise conditions, 50 episodes per task and condition."""
+    t = quick_train()
+    return ExperimentConfig(
+        out=Path("runs/full"),
+        tasks=("reach-v3", "button-press-topdown-v3", "pick-place-v3", "drawer-open-v3", "push-v3"),
+        image_size=128,
+        demos_per_task=50,
+        heldout_per_task=5,
+        arms=("baseline", "gaze", "perturbed", "blobs", "other_episode", "saliency", "uniform"),
+        train_seeds=(0, 1, 2),
+        train=replace(
+            t,
+            steps=20_000,
+            policy=dataclasses.replace(t.policy, image_hw=(128, 128), patch_size=16),
+            optim=OptimConfig(lr=5e-4, warmup_steps=500, min_lr_frac=0.05),
+            data=DataConfig(),
+        ),
+        parallel=os.cpu_count() or 2,
+        eval=EvalConfig(
+            episodes=50,
+            max_steps=200,
+            workers=os.cpu_count() or 2,
+            conditions=(
+                "clean",
+                "dim:0.7",
+                "bright:0.7",
+                "tint:1",
+                "gaussian_noise:0.3",
+                "gaussian_noise:0.6",
+                "salt_pepper:0.5",
+            ),
+        ),
+        convergence_points=8,
+        convergence_episodes=20,
+    )
+
+
+PRESETS = {"quick": quick, "smoke": smoke, "paper": paper, "full": full}
