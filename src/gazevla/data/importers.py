@@ -28,6 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from gazevla.data.store import Episode, EpisodeStore
+from gazevla.utils.subcommands import Entry, Subcommands, run_entry
 
 log = logging.getLogger(__name__)
 
@@ -153,44 +154,40 @@ def write_episodes(
     }
 
 
-_SUBCOMMANDS = {
-    "lerobot": (
-        "gazevla.data.lerobot_v3",
-        "import a LeRobot v3.0 data set (parquet + MP4) into an episode store",
-    ),
-    "hdf5": ("gazevla.data.hdf5", "import LIBERO / robomimic HDF5 demonstrations into an episode store"),
-    "export-priors": (
-        "gazevla.data.lerobot_export",
-        "export a store's gaze priors as a LeRobot sidecar (parquet + JSON)",
-    ),
-}
+COMMANDS = Subcommands(
+    prog="gazevla import",
+    synopsis="<lerobot|hdf5|export-priors> [options]",
+    commands={
+        "lerobot": (
+            "gazevla.data.lerobot_v3:import_main",
+            "import a LeRobot v3.0 data set (parquet + MP4) into an episode store",
+        ),
+        "hdf5": (
+            "gazevla.data.hdf5:import_main",
+            "import LIBERO / robomimic HDF5 demonstrations into an episode store",
+        ),
+        "export-priors": (
+            "gazevla.data.lerobot_export:export_main",
+            "export a store's gaze priors as a LeRobot sidecar (parquet + JSON)",
+        ),
+    },
+    footer=(__doc__ or "").split("\n\n")[1],
+    noun="source",
+)
 
 
-def _usage() -> str:
-    lines = ["usage: gazevla import <lerobot|hdf5|export-priors> [options]", ""]
-    lines += [f"  {name:<14} {doc}" for name, (_, doc) in _SUBCOMMANDS.items()]
-    return "\n".join(lines + ["", (__doc__ or "").split("\n\n")[1]])
-
-
-def main(argv: list[str] | None = None) -> int:
-    import importlib
-
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] in ("-h", "--help"):
-        print(_usage())
-        return 0
-    name, rest = argv[0], argv[1:]
-    if name not in _SUBCOMMANDS:
-        print(f"gazevla import: unknown source {name!r}\n\n{_usage()}", file=sys.stderr)
-        return 2
+def _run(name: str, entry: Entry, argv: list[str]) -> int:
+    """Run an import subcommand; a bad or missing source file is exit status 1 with the error on stderr."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    module = importlib.import_module(_SUBCOMMANDS[name][0])
-    entry = module.export_main if name == "export-priors" else module.import_main
     try:
-        return int(entry(rest) or 0)
+        return run_entry(name, entry, argv)
     except (DataImportError, FileNotFoundError) as e:
         print(f"gazevla import {name}: error: {e}", file=sys.stderr)
         return 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    return COMMANDS.main(argv, run=_run)
 
 
 if __name__ == "__main__":

@@ -10,11 +10,10 @@
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-SUBCOMMANDS = {"strip": "frames of an episode with its gaze heatmap and point"}
+from gazevla.utils.subcommands import Subcommands
 
 
 @dataclass(frozen=True)
@@ -95,29 +94,30 @@ def strip(cfg: StripConfig) -> Path:
     return Path(cfg.out)
 
 
-def _usage() -> str:
-    lines = ["usage: gazevla viz <figure> [options]", "", "figures:"]
-    lines += [f"  {k:<8} {v}" for k, v in SUBCOMMANDS.items()]
-    return "\n".join(lines)
+def strip_main(argv: list[str]) -> int:
+    from gazevla.config import parse
+
+    cfg = parse(
+        {"default": StripConfig}, argv, prog="gazevla viz strip", description=__doc__.split("\n\n")[0]
+    )
+    print(f"wrote {strip(cfg)}")
+    return 0
+
+
+COMMANDS = Subcommands(
+    prog="gazevla viz",
+    synopsis="<figure> [options]",
+    commands={
+        "strip": ("gazevla.viz.cli:strip_main", "frames of an episode with its gaze heatmap and point")
+    },
+    heading="figures:",
+    noun="figure",
+    width=8,
+)
 
 
 def main(argv: list[str] | None = None) -> int:
-    from gazevla.config import parse
-
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] in ("-h", "--help"):
-        print(_usage())
-        return 0
-    name, rest = argv[0], argv[1:]
-    if name == "strip":
-        cfg = parse(
-            {"default": StripConfig}, rest, prog="gazevla viz strip", description=__doc__.split("\n\n")[0]
-        )
-        path = strip(cfg)
-        print(f"wrote {path}")
-        return 0
-    print(f"gazevla viz: unknown figure {name!r}\n\n{_usage()}", file=sys.stderr)
-    return 2
+    return COMMANDS.main(argv)
 
 
 if __name__ == "__main__":
