@@ -222,7 +222,7 @@ def test_cli(tmp_path, capsys):
 
 def test_export_priors_of_hdf5_episodes_stays_upright(tmp_path):
     pytest.importorskip("pyarrow")
-    from gazevla.data.lerobot_v3 import export_priors_lerobot, read_priors_lerobot
+    from gazevla.data.lerobot_export import export_priors_lerobot, read_priors_lerobot
     from gazevla.gaze.aggregation import AggregationConfig
     from gazevla.gaze.priors import PriorsConfig, make_priors
 

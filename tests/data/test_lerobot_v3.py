@@ -14,13 +14,8 @@ pq = pytest.importorskip("pyarrow.parquet")
 
 from gazevla.data import importers  # noqa: E402
 from gazevla.data.importers import DataImportError  # noqa: E402
-from gazevla.data.lerobot_v3 import (  # noqa: E402
-    LeRobotImportConfig,
-    LeRobotV3Dataset,
-    export_priors_lerobot,
-    import_lerobot,
-    read_priors_lerobot,
-)
+from gazevla.data.lerobot_export import export_priors_lerobot, read_priors_lerobot  # noqa: E402
+from gazevla.data.lerobot_v3 import LeRobotImportConfig, LeRobotV3Dataset, import_lerobot  # noqa: E402
 from gazevla.data.store import EpisodeStore  # noqa: E402
 from gazevla.data.video import VideoFile  # noqa: E402
 from gazevla.gaze.aggregation import AggregationConfig  # noqa: E402
@@ -472,3 +467,23 @@ def test_non_finite_state_is_refused_by_name(copy, tmp_path):
     with pytest.raises(DataImportError, match=r"/ds: episode 1: 'state' must be a finite"):
         import_lerobot(cfg(copy, tmp_path / "s"))
     _assert_no_partial(tmp_path / "s", [0])
+
+
+def test_camera_names_and_image_shapes():
+    from gazevla.data.lerobot_v3_metadata import camera_name, image_hw, rgb_cameras
+
+    assert camera_name("observation.images.front") == "front"
+    assert camera_name("observation.image.wrist/left") == "wrist_left"
+    assert camera_name("observation.images.") == "images."
+    assert image_hw({"shape": [48, 64, 3], "names": ["height", "width", "channels"]}) == (48, 64)
+    assert image_hw({"shape": [3, 48, 64], "names": ["channels", "height", "width"]}) == (48, 64)
+    assert image_hw({"shape": [3, 48, 64]}) == (48, 64)
+    assert image_hw({"shape": [48]}) is None
+    features = {
+        "observation.images.front": {"dtype": "video", "shape": [48, 64, 3]},
+        "observation.images.depth": {"dtype": "video", "shape": [48, 64, 1]},
+        "observation.images.ir": {"dtype": "image", "shape": [48, 64, 3], "info": {"is_depth_map": True}},
+        "observation.images.wrist": {"dtype": "image", "shape": [3, 48, 64]},
+        "action": {"dtype": "float32", "shape": [7]},
+    }
+    assert rgb_cameras(features) == {"front": "observation.images.front", "wrist": "observation.images.wrist"}
