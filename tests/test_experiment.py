@@ -13,10 +13,14 @@ def test_smoke_experiment_end_to_end_and_resume(tmp_path, capsys):
     out = tmp_path / "exp"
     assert main(["--preset", "smoke", "--out", str(out)]) == 0
     report = json.loads((out / "report.json").read_text())
-    assert set(report["success"]) == {"baseline", "gaze", "perturbed"}
+    arms = {"baseline", "gaze", "perturbed", "glc"}
+    assert set(report["success"]) == arms
     for arm in report["success"].values():
         assert set(arm) == {"clean", "dim:0.7"} and arm["clean"]["n"] == 2
-    assert set(report["alignment"]) == {"baseline", "gaze", "perturbed"}
+    assert set(report["alignment"]) == arms
+    glc = json.loads((out / "stages" / "priors.json").read_text())["glc"]  # trained here: no checkpoint given
+    assert glc["steps"] == 3 and (out / "glc" / "final" / "model.safetensors").exists()
+    assert report["glc"]["eval"]["heldout"]
     assert "gaze_kl" in report["alignment"]["gaze"]
     for fig in report["figures"].values():
         assert (out / fig).stat().st_size > 1000

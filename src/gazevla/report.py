@@ -273,6 +273,16 @@ def markdown(report: dict[str, Any]) -> str:
                 + f" | {c['steps_to_threshold']} | {c.get('steps_to_baseline_final')} |"
             )
         lines.append("")
+    if report.get("glc") and report["glc"].get("eval"):
+        g = report["glc"]["eval"]
+        lines += [
+            "## The glc arm's estimator",
+            "",
+            f"A small GLC trained here for {report['glc']['steps']} steps on other setups' simulated gaze; on its "
+            f"held-out episodes {g['heldout']}: F1 {g['glc_f1']:.3f} (centre prior {g['centre_prior_f1']:.3f}, "
+            f"uniform {g['uniform_f1']:.3f}).",
+            "",
+        ]
     if report.get("alignment"):
         al = report["alignment"]
         keys = [

@@ -27,6 +27,12 @@ class ExperimentConfig:
     collect_workers: int = 2
     gaze_source: str = "visuomotor"
     gaze_params: tuple[str, ...] = ()
+    glc_params: tuple[str, ...] = ()
+    """the `glc` arm's gaze-source parameters; without checkpoint=DIR a small GLC is trained here first (see
+    `trains_glc`) on the gaze source's points of other demonstrations, then predicts the priors"""
+    glc_demos_per_task: int = 20
+    """expert demonstrations per task on setups of their own (never trained on or evaluated) that train GLC"""
+    glc_steps: int = 600
     prior_size: tuple[int, int] = (64, 64)
     aggregation: AggregationConfig = field(default_factory=lambda: AggregationConfig(past=2, future=2))
     arms: tuple[str, ...] = ("baseline", "gaze", "perturbed")
@@ -47,6 +53,15 @@ class ExperimentConfig:
     figure_frames: int = 4
 
 
+def trains_glc(cfg: ExperimentConfig) -> bool:
+    """Whether the experiment trains its own GLC: the glc arm runs and no checkpoint was given."""
+    return "glc" in cfg.arms and not any(p.startswith("checkpoint=") for p in cfg.glc_params)
+
+
+def glc_dir(cfg: ExperimentConfig) -> Path:
+    return Path(cfg.out) / "glc"
+
+
 def arm_prior(arm: str, cfg: ExperimentConfig) -> tuple[str | None, str | None, tuple[str, ...]]:
     """Arm -> (prior name, gaze source, source params); baseline has none."""
     base = cfg.gaze_source
@@ -58,7 +73,11 @@ def arm_prior(arm: str, cfg: ExperimentConfig) -> tuple[str | None, str | None, 
         "other_episode": (f"{base}-other-episode", "perturbed", ("mode=other_episode", f"base={base}")),
         "saliency": ("saliency", "saliency", ()),
         "uniform": ("uniform", "uniform", ()),
-        "glc": ("glc", "glc", cfg.gaze_params),
+        "glc": (
+            "glc",
+            "glc",
+            cfg.glc_params if not trains_glc(cfg) else (f"checkpoint={glc_dir(cfg) / 'final'}",),
+        ),
     }
     if arm not in table:
         raise KeyError(f"unknown arm {arm!r}; choose from {sorted(table)}")
@@ -86,6 +105,9 @@ def smoke() -> ExperimentConfig:
         heldout_per_task=1,
         collect_workers=1,
         prior_size=(32, 32),
+        arms=("baseline", "gaze", "perturbed", "glc"),
+        glc_demos_per_task=5,
+        glc_steps=3,
         train=replace(t, steps=12, gaze=GazeConfig(weight=0.1)),
         parallel=1,
         eval=EvalConfig(episodes=2, max_steps=15, workers=1, videos=1, conditions=("clean", "dim:0.7")),

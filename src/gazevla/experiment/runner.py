@@ -35,7 +35,7 @@ from typing import Any
 
 from gazevla.config import save_config, to_dict
 from gazevla.evaluate import evaluate
-from gazevla.experiment.config import PRESETS, ExperimentConfig, arm_prior
+from gazevla.experiment.config import PRESETS, ExperimentConfig, arm_prior, glc_dir, trains_glc
 from gazevla.train import TrainConfig
 from gazevla.utils.io import atomic_write_json, atomic_write_text
 
@@ -50,6 +50,7 @@ class Experiment:
         self.out = Path(cfg.out)
         self.store = self.out / "demos"
         self.heldout = self.out / "heldout"
+        self.glc_store = self.out / "glc_demos"
         self.times: dict[str, float] = {}
 
     # ----- bookkeeping ------------------------------------------------------------------------------------
@@ -96,10 +97,13 @@ class Experiment:
             gl_backend=c.eval.gl_backend or "",
         )
         out = {}
-        for name, store, n, seed_base in (
+        sets = [
             ("train", self.store, c.demos_per_task, 0),
             ("heldout", self.heldout, c.heldout_per_task, c.eval.seed_start + 500),
-        ):
+        ]
+        if trains_glc(c):
+            sets.append(("glc", self.glc_store, c.glc_demos_per_task, c.eval.seed_start + 700))
+        for name, store, n, seed_base in sets:
             report = collect(CollectConfig(out=store, episodes=n, seed_base=seed_base, **common))
             if not report.complete:
                 raise RuntimeError(
@@ -131,6 +135,7 @@ class Experiment:
 
         c = self.cfg
         made = []
+        glc = self.train_glc() if trains_glc(c) else None
         for store in (self.store, self.heldout):
             for name, source, params in self.priors_needed():
                 make_priors(
@@ -145,7 +150,38 @@ class Experiment:
                     )
                 )
                 made.append(f"{store.name}/{name}")
-        return {"priors": made}
+        return {"priors": made, "glc": glc}
+
+    def train_glc(self) -> dict[str, Any]:
+        """Train the small GLC on the gaze source's points of the GLC demonstrations (resumes; every 5th
+        episode per task held out for its F1/AUC against a centre prior), for the glc arm's priors."""
+        from gazevla.glc.cli import GLCTrainCommand, train_command
+
+        c = self.cfg
+        base = GLCTrainCommand()
+        info = train_command(
+            replace(
+                base,
+                store=self.glc_store,
+                camera=c.camera,
+                gaze_source=c.gaze_source,
+                gaze_params=c.gaze_params,
+                out=glc_dir(c),
+                optim=replace(base.optim, steps=c.glc_steps),
+            )
+        )
+        out: dict[str, Any] = {"checkpoint": str(glc_dir(c) / "final"), "steps": info["steps"], "eval": None}
+        if info.get("eval"):
+            rep = json.loads(Path(info["eval"]).read_text())
+            out["eval"] = {
+                "heldout": rep["episodes"],
+                **{
+                    f"{name}_{metric}": rep["scores"]["all_valid"][name][metric]
+                    for name in ("glc", "centre_prior", "uniform")
+                    for metric in ("f1", "auc")
+                },
+            }
+        return out
 
     def run_dirs(self) -> dict[str, Path]:
         return {
@@ -343,6 +379,7 @@ class Experiment:
             "paired": paired_tests(ev["episodes"]),
             "verdict": verdict(success),
             "convergence": conv,
+            "glc": results["priors"].get("glc"),
             "alignment": {
                 n.split("@")[0] if len(c.train_seeds) == 1 else n: v
                 for n, v in results["align"]["alignment"].items()
