@@ -29,7 +29,6 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "import LeRobot v3 or HDF5 demonstrations into an episode store",
     ),
     "viz": ("gazevla.viz.cli:main", "draw episodes with their gaze and attention"),
-    "selfcheck": ("gazevla.selfcheck:main", "a short end-to-end check of the core library"),
 }
 
 COMMANDS = Subcommands(
