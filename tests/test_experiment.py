@@ -36,6 +36,12 @@ def test_smoke_experiment_end_to_end_and_resume(tmp_path, capsys):
         for e in eval_info["episodes"]
     }
     assert len({tuple(v) for v in seeds.values()}) == 1  # every arm and condition on the same setups
+    assert all(0 <= e["min_distance"] <= e["final_distance"] for e in eval_info["episodes"])
+    assert (
+        set(report["distance"]["table"]) == arms
+        and "gaze vs baseline | clean" in report["distance"]["paired"]
+    )
+    assert (out / "eval" / "episodes.jsonl").read_text().count("\n") == len(eval_info["episodes"])
     markers = {s: (out / "stages" / f"{s}.json").stat().st_mtime_ns for s in STAGES}
     capsys.readouterr()
     assert main(["--preset", "smoke", "--out", str(out)]) == 0  # rerun: finished stages are skipped

@@ -5,7 +5,9 @@ import pytest
 from gazevla.evaluate import format_table, summarize
 from gazevla.report import (
     convergence,
+    distance_table,
     markdown,
+    paired_distance_tests,
     paired_tests,
     readme_block,
     success_table,
@@ -52,6 +54,24 @@ def test_paired_tests_pair_by_seed_and_task():
     assert "overlap, so this budget does not decide" in v[0]
 
 
+def test_distances_pool_seeds_and_pair_by_setup():
+    recs = records("baseline@s0", [0] * 6) + records("baseline@s1", [0] * 6) + records("gaze@s0", [1] * 6)
+    for r in recs:
+        r["min_distance"] = 0.10 if r["arm"].startswith("baseline") else 0.02 + 0.001 * (r["seed"] - 1000)
+    table = distance_table(recs)
+    assert table["baseline"]["clean"]["n"] == 12 and table["baseline"]["clean"]["mean"] == pytest.approx(0.10)
+    paired = paired_distance_tests(recs)["gaze vs baseline | clean"]
+    assert paired["n"] == 6  # gaze has seed s0 only: pairs with baseline@s0, never baseline@s1
+    assert paired["mean_diff"] == pytest.approx(-0.0775) and paired["p_value"] < 0.05
+    assert distance_table(records("baseline@s0", [1])) == {}  # no distances recorded: no table
+
+
+def test_verdict_cites_the_paired_test():
+    recs = records("baseline@s0", [0] * 10) + records("gaze@s0", [1] * 10)
+    v = verdict(success_table(recs), paired=paired_tests(recs))
+    assert "paired McNemar p = 0.002" in v[0]
+
+
 def test_convergence_steps_to_threshold_and_baseline_final():
     conv = convergence(
         {"baseline": {100: (1, 10), 200: (4, 10)}, "gaze": {100: (5, 10), 200: (6, 10)}}, threshold=0.5
@@ -93,6 +113,11 @@ def test_markdown_and_readme_block(tmp_path):
     }
     md = markdown(report)
     assert "| gaze | 2/2 = 1.00" in md and "gaze vs baseline | clean" in md
+    assert "Closest approach" not in md  # no distances recorded
+    for r in recs:
+        r["min_distance"] = 0.05
+    report["distance"] = {"table": distance_table(recs), "paired": paired_distance_tests(recs)}
+    assert "| baseline | 0.0500 [0.0500, 0.0500] |" in markdown(report)
     run = tmp_path / "run"
     (run / "figures").mkdir(parents=True)
     (run / "figures" / "attention.png").write_bytes(b"png")

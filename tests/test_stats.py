@@ -26,3 +26,19 @@ def test_exact_tests():
 def test_steps_to_threshold():
     assert steps_to_threshold([100, 200, 300], [0.1, 0.5, 0.6], 0.5) == 200
     assert steps_to_threshold([100], [0.1], 0.5) is None
+
+
+def test_paired_mean_difference():
+    from gazevla.stats import paired_mean_difference
+
+    same = paired_mean_difference([0.1, 0.2, 0.3], [0.1, 0.2, 0.3])
+    assert same["mean_diff"] == 0 and same["p_value"] == 1.0
+    closer = paired_mean_difference([0.01 * i for i in range(30)], [0.01 * i + 0.05 for i in range(30)])
+    assert closer["mean_diff"] == pytest.approx(-0.05) and closer["p_value"] < 0.001
+    assert closer["ci95"][0] <= closer["mean_diff"] <= closer["ci95"][1]
+    noisy = paired_mean_difference([0.1, 0.3, 0.2, 0.4], [0.2, 0.2, 0.3, 0.3])
+    assert noisy["p_value"] > 0.5  # differences -0.1, +0.1, -0.1, +0.1 say nothing
+    with pytest.raises(ValueError, match="equal-length"):
+        paired_mean_difference([1.0], [1.0, 2.0])
+    with pytest.raises(ValueError, match="finite"):
+        paired_mean_difference([float("nan")], [1.0])

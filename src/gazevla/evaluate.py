@@ -8,7 +8,9 @@
 (a perturbation spec, `gazevla.envs.perturbations`), so arms form pairs seed by seed. Evaluation seeds start at
 `seed_start` (default 1000, i.e. Meta-World benchmark seed 20's setups), away from the setups demonstrations
 are collected on (seeds from 0). One worker process per core; each loads each checkpoint once.
-Writes `eval_info.json` (config, seeds actually used, every episode's outcome, summaries) and GIF videos
+Writes `eval_info.json` (config, seeds actually used, every episode's outcome -- success, length and, where
+the simulator measures it, the closest and final distance of the object (or hand) to its target in metres --
+and summaries) and GIF videos
 of the first `videos` episodes per arm, task and condition with the policy's attention overlaid. Every
 finished rollout is also appended to `episodes.jsonl`; a rerun into the same `--out` reuses the rollouts
 logged there for the same checkpoint files, task, condition and seed, so a killed evaluation resumes.
@@ -142,6 +144,7 @@ class Worker:
         probe_spec = policy.gaze_probe_spec(cams[0]) if job.video else None
         attn = None
         success, steps = False, 0
+        distances = [info["obj_to_target"]] if "obj_to_target" in info else []
         for steps in range(1, self.max_steps + 1):  # noqa: B007 (steps is the episode length)
             if probe_spec is not None:
                 from gazevla.attention import AttentionProbe
@@ -155,6 +158,8 @@ class Worker:
                 action = policy.select_action(obs, obs["instruction"])
             obs, _, terminated, truncated, info = env.step(action)
             success = success or bool(info["success"])
+            if "obj_to_target" in info:
+                distances.append(float(info["obj_to_target"]))
             if terminated or truncated:
                 break
         out = {
@@ -165,6 +170,9 @@ class Worker:
             "success": success,
             "length": steps,
         }
+        if distances:  # the simulator's own progress measure (Meta-World: object, or hand, to target; metres)
+            out["min_distance"] = min(distances)
+            out["final_distance"] = distances[-1]
         if job.video and frames:
             from gazevla.viz.overlay import write_gif
 
@@ -306,13 +314,17 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     def cell(rs: list[dict[str, Any]]) -> dict[str, Any]:
         k, n = sum(r["success"] for r in rs), len(rs)
         lo, hi = wilson(k, n)
-        return {
+        out = {
             "successes": k,
             "n": n,
             "rate": k / n if n else float("nan"),
             "ci95": [lo, hi],
             "mean_length": float(np.mean([r["length"] for r in rs])) if rs else float("nan"),
         }
+        dist = [r["min_distance"] for r in rs if "min_distance" in r]
+        if dist:
+            out["mean_min_distance"] = float(np.mean(dist))
+        return out
 
     arms = sorted({r["arm"] for r in records})
     conditions = list(dict.fromkeys(r["condition"] for r in records))

@@ -55,6 +55,39 @@ def fisher_exact(k1: int, n1: int, k2: int, n2: int) -> float:
     return min(1.0, sum(prob(x) for x in range(lo, hi + 1) if prob(x) <= p_obs * (1 + 1e-9)))
 
 
+def paired_mean_difference(
+    a: Sequence[float], b: Sequence[float], permutations: int = 20_000, seed: int = 0
+) -> dict[str, float]:
+    """Paired comparison of a continuous outcome (e.g. distance to the goal) on the same seeds.
+
+    Returns the means, the mean difference a - b with a normal-approximation 95% interval, and a two-sided
+    sign-flip permutation p-value (seeded, so reproducible; (hits + 1) / (permutations + 1))."""
+    import numpy as np
+
+    x, y = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    if x.shape != y.shape or x.ndim != 1:
+        raise ValueError(f"paired outcomes must be two equal-length lists, got {x.shape} and {y.shape}")
+    if not (np.isfinite(x).all() and np.isfinite(y).all()):
+        raise ValueError("paired outcomes must be finite")
+    n = len(x)
+    if n == 0:
+        raise ValueError("no pairs to compare")
+    d = x - y
+    mean = float(d.mean())
+    half = 1.959964 * float(d.std(ddof=1)) / math.sqrt(n) if n > 1 else float("inf")
+    signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=(permutations, n))
+    null = np.abs((signs * d).mean(axis=1))
+    p = (int((null >= abs(mean) - 1e-12).sum()) + 1) / (permutations + 1)
+    return {
+        "n": n,
+        "mean_a": float(x.mean()),
+        "mean_b": float(y.mean()),
+        "mean_diff": mean,
+        "ci95": [mean - half, mean + half],
+        "p_value": min(1.0, p),
+    }
+
+
 def steps_to_threshold(steps: Sequence[int], values: Sequence[float], threshold: float) -> int | None:
     """First step at which a success-versus-steps curve reaches `threshold`; None if it never does."""
     for s, v in zip(steps, values):

@@ -312,8 +312,10 @@ class Experiment:
     def stage_report(self, results: dict[str, Any]) -> dict[str, Any]:
         from gazevla.report import (
             convergence,
+            distance_table,
             machine_summary,
             markdown,
+            paired_distance_tests,
             paired_tests,
             plot_convergence,
             plot_success,
@@ -325,6 +327,7 @@ class Experiment:
         c = self.cfg
         ev = json.loads(Path(results["eval"]["eval_info"]).read_text())
         success = success_table(ev["episodes"])
+        paired = paired_tests(ev["episodes"])
         conv_path = results["converge"]["eval_info"]
         conv_records = json.loads(Path(conv_path).read_text())["episodes"] if conv_path else []
         last_seed = c.eval.seed_start + min(c.convergence_episodes, c.eval.episodes)
@@ -376,8 +379,12 @@ class Experiment:
                 "seeds": f"{c.eval.seed_start}..{c.eval.seed_start + c.eval.episodes - 1}",
             },
             "success": success,
-            "paired": paired_tests(ev["episodes"]),
-            "verdict": verdict(success),
+            "paired": paired,
+            "distance": {
+                "table": distance_table(ev["episodes"]),
+                "paired": paired_distance_tests(ev["episodes"]),
+            },
+            "verdict": verdict(success, paired=paired),
             "convergence": conv,
             "glc": results["priors"].get("glc"),
             "alignment": {

@@ -1,0 +1,256 @@
+"""The experiment's report as text: report.md and the README's results blocks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+
+def fmt_cell(c: dict[str, Any]) -> str:
+    return f"{c['successes']}/{c['n']} = {c['rate']:.2f} [{c['ci95'][0]:.2f}, {c['ci95'][1]:.2f}]"
+
+
+def per_task_lines(report: dict[str, Any], condition: str = "clean") -> list[str]:
+    """Successes per task under `condition`, one row per arm (pooled over training seeds), Wilson 95%."""
+    t, tasks = report["success"], report["tasks"]
+    lines = [
+        f"Per task ({condition}):",
+        "",
+        "| arm | " + " | ".join(tasks) + " |",
+        "|---|" + "---|" * len(tasks),
+    ]
+    for a in t:
+        pt = t[a][condition]["per_task"]
+        lines.append(
+            f"| {a} | "
+            + " | ".join(
+                f"{pt[k]['successes']}/{pt[k]['n']} [{pt[k]['ci95'][0]:.2f}, {pt[k]['ci95'][1]:.2f}]"
+                for k in tasks
+            )
+            + " |"
+        )
+    return lines
+
+
+def paired_lines(report: dict[str, Any]) -> list[str]:
+    """Each arm against the baseline on the same setups: exact McNemar and Fisher p-values."""
+    if not report.get("paired"):
+        return []
+    lines = [
+        "",
+        "## Paired comparisons (same setups; exact McNemar on discordant episodes, Fisher on counts)",
+        "",
+        "| comparison | condition | pairs | arm only | baseline only | McNemar p | Fisher p |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for k, v in report["paired"].items():
+        comparison, condition = k.split(" | ", 1)
+        vals = list(v.values())
+        lines.append(
+            f"| {comparison} | {condition} | {vals[0]} | {vals[1]} | {vals[2]} | {v['mcnemar_p']:.3f} | {v['fisher_p']:.3f} |"
+        )
+    return lines
+
+
+def distance_lines(report: dict[str, Any], conds: list[str]) -> list[str]:
+    """The closest-approach table and its paired comparisons, when the report has them."""
+    dist = report.get("distance")
+    if not dist or not dist.get("table"):
+        return []
+    table = dist["table"]
+    lines = [
+        "",
+        "## Closest approach to the target (metres; lower is better)",
+        "",
+        "Per episode, the smallest distance of the object (the hand, for reach) to its target that the "
+        "simulator measured: a continuous outcome that moves before success does. Mean [95% interval]:",
+        "",
+        "| arm | " + " | ".join(conds) + " |",
+        "|---|" + "---|" * len(conds),
+    ]
+    for a, row in table.items():
+        cells = [
+            f"{row[c]['mean']:.4f} [{row[c]['ci95'][0]:.4f}, {row[c]['ci95'][1]:.4f}]" if c in row else "-"
+            for c in conds
+        ]
+        lines.append(f"| {a} | " + " | ".join(cells) + " |")
+    if dist.get("paired"):
+        lines += [
+            "",
+            "| comparison | condition | pairs | mean difference [95% interval] | permutation p |",
+            "|---|---|---|---|---|",
+        ]
+        for k, v in dist["paired"].items():
+            comparison, condition = k.split(" | ", 1)
+            lines.append(
+                f"| {comparison} | {condition} | {v['n']} | {v['mean_diff']:+.4f} "
+                f"[{v['ci95'][0]:+.4f}, {v['ci95'][1]:+.4f}] | {v['p_value']:.4f} |"
+            )
+    return lines
+
+
+def markdown(report: dict[str, Any]) -> str:
+    t = report["success"]
+    arms = list(t)
+    conds = list(next(iter(t.values())))
+    lines = [
+        f"# gazevla experiment: preset `{report['preset']}`",
+        "",
+        f"{report['date']} on {report['machine']['summary']}; wall time {report['wall_time_s'] / 60:.1f} min.",
+        "",
+        f"Tasks: {', '.join(report['tasks'])}. Demonstrations: {report['demos']['episodes']} episodes "
+        f"({report['demos']['frames']} frames) on training setups; evaluation on {report['eval']['episodes']} unseen setups "
+        f"per task and condition (seeds {report['eval']['seeds']}), identical for every arm. Training: "
+        f"{report['train']['steps']} steps, batch {report['train']['batch_size']}, seeds {report['train']['seeds']}; "
+        f"gaze weight {report['train']['gaze_weight']} on layers {report['train']['gaze_layers']}.",
+        "",
+        "## Success (pooled over tasks and training seeds; Wilson 95% intervals)",
+        "",
+        "| arm | " + " | ".join(conds) + " |",
+        "|---|" + "---|" * len(conds),
+    ]
+    lines += [f"| {a} | " + " | ".join(fmt_cell(t[a][c]) for c in conds) + " |" for a in arms]
+    lines += ["", *per_task_lines(report)]
+    lines += [
+        "",
+        "Drop from clean (success rate points):",
+        "",
+        "| arm | " + " | ".join(conds[1:]) + " |",
+        "|---|" + "---|" * max(1, len(conds) - 1),
+    ]
+    lines += [
+        f"| {a} | " + " | ".join(f"{t[a][c]['drop_from_clean']:+.2f}" for c in conds[1:]) + " |" for a in arms
+    ]
+    lines += paired_lines(report)
+    lines += distance_lines(report, conds)
+    lines += ["", "## What the numbers say", "", *report["verdict"], ""]
+    if report.get("convergence"):
+        conv = report["convergence"]
+        lines += [
+            "## Convergence (clean success at checkpoints)",
+            "",
+            "| arm | "
+            + " | ".join(str(s) for s in next(iter(conv["arms"].values()))["steps"])
+            + " | steps to "
+            f"{conv['threshold']:.2f} | steps to baseline's final |",
+            "|---|" + "---|" * (len(next(iter(conv["arms"].values()))["steps"]) + 2),
+        ]
+        for a, c in conv["arms"].items():
+            lines.append(
+                f"| {a} | "
+                + " | ".join(f"{r:.2f}" for r in c["rates"])
+                + f" | {c['steps_to_threshold']} | {c.get('steps_to_baseline_final')} |"
+            )
+        lines.append("")
+    if report.get("glc") and report["glc"].get("eval"):
+        g = report["glc"]["eval"]
+        lines += [
+            "## The glc arm's estimator",
+            "",
+            f"A small GLC trained here for {report['glc']['steps']} steps on other setups' simulated gaze; on its "
+            f"held-out episodes {g['heldout']}: F1 {g['glc_f1']:.3f} (centre prior {g['centre_prior_f1']:.3f}, "
+            f"uniform {g['uniform_f1']:.3f}).",
+            "",
+        ]
+    if report.get("alignment"):
+        al = report["alignment"]
+        keys = [
+            k
+            for k in (
+                "gaze_kl",
+                "gaze_cc",
+                "gaze_sim",
+                "gaze_nss",
+                "gaze_auc_judd",
+                "object_mass",
+                "object_mass_chance",
+            )
+            if any(k in v for v in al.values())
+        ]
+        lines += [
+            "## Attention vs gaze on held-out frames (unseen setups)",
+            "",
+            "| arm | " + " | ".join(keys) + " |",
+            "|---|" + "---|" * len(keys),
+        ]
+        for a, v in al.items():
+            lines.append(f"| {a} | " + " | ".join(f"{v[k]:.3f}" if k in v else "-" for k in keys) + " |")
+        lines += [
+            "",
+            "KL: lower is closer to gaze; CC, SIM, NSS, AUC: higher is closer; object_mass: attention on the 3x3 patches "
+            "around the task object (chance: object_mass_chance).",
+            "",
+        ]
+    lines += ["## Figures", ""] + [f"![{k}]({v})" for k, v in report["figures"].items()] + [""]
+    if report.get("videos"):
+        lines += [
+            "Videos (policy view | attention overlay): "
+            + ", ".join(f"[{Path(v).name}]({v})" for v in report["videos"][:12]),
+            "",
+        ]
+    lines += ["Stage times (s): " + ", ".join(f"{k} {v:.0f}" for k, v in report["stage_times_s"].items()), ""]
+    return "\n".join(lines)
+
+
+def readme_block(report: dict[str, Any], figure: str) -> str:
+    """The README's results block for one experiment report (everything from the report itself)."""
+    t = report["success"]
+    conds = list(next(iter(t.values())))
+    command = (
+        "make demo" if report["preset"] == "quick" else f"gazevla experiment --preset {report['preset']}"
+    )
+    lines = [
+        f"Latest `{report['preset']}` run: {report['date']}, {report['machine']['summary']}, wall time "
+        f"{report['wall_time_s'] / 60:.1f} min (`{command}`). Tasks: {', '.join(report['tasks'])}; "
+        f"{report['train']['steps']} training steps per arm, seeds {report['train']['seeds']}; "
+        f"{report['eval']['episodes']} unseen setups per task and condition.",
+        "",
+        "| arm | " + " | ".join(conds) + " |",
+        "|---|" + "---|" * len(conds),
+        *[f"| {a} | " + " | ".join(fmt_cell(t[a][c]) for c in conds) + " |" for a in t],
+        "",
+    ]
+    if report.get("alignment"):
+        keys = [
+            k
+            for k in ("gaze_kl", "gaze_cc", "gaze_auc_judd", "object_mass", "object_mass_chance")
+            if any(k in v for v in report["alignment"].values())
+        ]
+        lines += [
+            "Attention vs gaze on held-out frames:",
+            "",
+            "| arm | " + " | ".join(keys) + " |",
+            "|---|" + "---|" * len(keys),
+        ]
+        lines += [
+            f"| {a} | " + " | ".join(f"{v[k]:.3f}" if k in v else "-" for k in keys) + " |"
+            for a, v in report["alignment"].items()
+        ]
+        lines.append("")
+    if len(report["train"]["seeds"]) > 1:  # the powered comparison: per task, paired tests, distances
+        conds = list(next(iter(report["success"].values())))
+        lines += [*per_task_lines(report), *paired_lines(report), *distance_lines(report, conds), ""]
+    lines += [*report["verdict"], "", f"![attention]({figure})", ""]
+    return "\n".join(lines)
+
+
+def update_readme(readme: Path, run_dir: Path, figure_dir: Path, marker: str = "quick-results") -> None:
+    """Replace the README's block between `<!-- {marker}:start -->` and `<!-- {marker}:end -->` with the
+    results of the experiment in `run_dir`, copying its attention figure into `figure_dir`."""
+    import json
+    import shutil
+
+    from gazevla.utils.io import atomic_write_text
+
+    report = json.loads((run_dir / "report.json").read_text())
+    figure_dir.mkdir(parents=True, exist_ok=True)
+    fig = figure_dir / f"{marker}-attention.png"
+    shutil.copyfile(run_dir / report["figures"]["attention"], fig)
+    start, end = f"<!-- {marker}:start -->", f"<!-- {marker}:end -->"
+    text = readme.read_text()
+    if start not in text or end not in text:
+        raise ValueError(f"{readme} has no {start} ... {end} block")
+    head, rest = text.split(start, 1)
+    _, tail = rest.split(end, 1)
+    block = readme_block(report, str(fig.relative_to(readme.parent)))
+    atomic_write_text(readme, f"{head}{start}\n{block}{end}{tail}")

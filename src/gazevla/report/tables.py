@@ -1,0 +1,173 @@
+"""The experiment's numbers: success tables with Wilson intervals, paired tests, distances, convergence.
+
+Everything is computed from the experiment's own records (evaluation episodes, training metrics); no number
+is typed in. Arms trained with several seeds are pooled over seeds (their evaluation episodes pair by
+training seed, task and setup seed).
+"""
+
+from __future__ import annotations
+
+import math
+import platform
+import statistics
+from collections import defaultdict
+from typing import Any
+
+from gazevla.stats import fisher_exact, mcnemar_exact, paired_mean_difference, steps_to_threshold, wilson
+
+
+def base_arm(name: str) -> str:
+    return name.split("@", 1)[0]
+
+
+def success_table(records: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:
+    """{arm: {condition: {successes, n, rate, ci95, per_task: {...}}}} pooled over training seeds."""
+    cells: dict[tuple[str, str, str], list[bool]] = defaultdict(list)
+    for r in records:
+        cells[(base_arm(r["arm"]), r["condition"], r["task"])].append(bool(r["success"]))
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    for (arm, cond, task), xs in sorted(cells.items()):
+        c = out.setdefault(arm, {}).setdefault(cond, {"successes": 0, "n": 0, "per_task": {}})
+        c["successes"] += sum(xs)
+        c["n"] += len(xs)
+        c["per_task"][task] = {"successes": sum(xs), "n": len(xs), "ci95": list(wilson(sum(xs), len(xs)))}
+    for arm in out.values():
+        for c in arm.values():
+            c["rate"] = c["successes"] / c["n"]
+            c["ci95"] = list(wilson(c["successes"], c["n"]))
+        if "clean" in arm:
+            for c in arm.values():
+                c["drop_from_clean"] = arm["clean"]["rate"] - c["rate"]
+    return out
+
+
+def paired_tests(records: list[dict[str, Any]], reference: str = "baseline") -> dict[str, dict[str, Any]]:
+    """Each arm against `reference` per condition: exact McNemar on episodes paired by (training seed, task,
+    setup seed), and Fisher's exact test on the pooled counts."""
+    key = defaultdict(dict)
+    for r in records:
+        arm, _, seed = r["arm"].partition("@")
+        key[(arm, r["condition"])][(seed, r["task"], r["seed"])] = bool(r["success"])
+    out = {}
+    arms = sorted({a for a, _ in key} - {reference})
+    for arm in arms:
+        for (a, cond), outcomes in key.items():
+            if a != arm or (reference, cond) not in key:
+                continue
+            ref = key[(reference, cond)]
+            common = sorted(set(outcomes) & set(ref))
+            if not common:
+                continue
+            x, y = [outcomes[k] for k in common], [ref[k] for k in common]
+            m = mcnemar_exact(x, y)
+            out[f"{arm} vs {reference} | {cond}"] = {
+                "pairs": len(common),
+                f"{arm}_only": m["a_only"],
+                f"{reference}_only": m["b_only"],
+                "mcnemar_p": m["p_value"],
+                "fisher_p": fisher_exact(sum(x), len(x), sum(y), len(y)),
+            }
+    return out
+
+
+def distance_table(records: list[dict[str, Any]], key: str = "min_distance") -> dict[str, dict[str, Any]]:
+    """{arm: {condition: {mean, ci95, n}}} of a per-episode distance (metres) pooled over training seeds and
+    tasks; empty when the records carry none (a simulator without a progress measure)."""
+    cells: dict[tuple[str, str], list[float]] = defaultdict(list)
+    for r in records:
+        if key in r:
+            cells[(base_arm(r["arm"]), r["condition"])].append(float(r[key]))
+    out: dict[str, dict[str, Any]] = {}
+    for (arm, cond), xs in sorted(cells.items()):
+        mean, sd = sum(xs) / len(xs), statistics.pstdev(xs) if len(xs) > 1 else 0.0
+        half = 1.959964 * sd / math.sqrt(len(xs))
+        out.setdefault(arm, {})[cond] = {"mean": mean, "ci95": [mean - half, mean + half], "n": len(xs)}
+    return out
+
+
+def paired_distance_tests(
+    records: list[dict[str, Any]], key: str = "min_distance", reference: str = "baseline"
+) -> dict[str, dict[str, Any]]:
+    """Each arm against `reference` per condition on a per-episode distance, paired by (training seed, task,
+    setup seed): mean difference (negative: closer than the reference), 95% interval, permutation p."""
+    by: dict[tuple[str, str], dict[tuple[str, str, int], float]] = defaultdict(dict)
+    for r in records:
+        if key in r:
+            arm, _, seed = r["arm"].partition("@")
+            by[(arm, r["condition"])][(seed, r["task"], r["seed"])] = float(r[key])
+    out = {}
+    for (arm, cond), xs in sorted(by.items()):
+        ref = by.get((reference, cond))
+        if arm == reference or not ref:
+            continue
+        common = sorted(set(xs) & set(ref))
+        if common:
+            out[f"{arm} vs {reference} | {cond}"] = paired_mean_difference(
+                [xs[k] for k in common], [ref[k] for k in common]
+            )
+    return out
+
+
+def convergence(curves: dict[str, dict[int, tuple[int, int]]], threshold: float) -> dict[str, Any]:
+    """curves: {arm: {step: (successes, n)}} -> rates, steps to `threshold`, and each arm's steps to reach the
+    baseline's final success rate."""
+    out: dict[str, Any] = {"threshold": threshold, "arms": {}}
+    for arm, pts in curves.items():
+        steps = sorted(pts)
+        rates = [pts[s][0] / pts[s][1] for s in steps]
+        out["arms"][arm] = {
+            "steps": steps,
+            "rates": rates,
+            "ci95": [list(wilson(*pts[s])) for s in steps],
+            "steps_to_threshold": steps_to_threshold(steps, rates, threshold),
+        }
+    if "baseline" in out["arms"] and out["arms"]["baseline"]["rates"]:
+        final = out["arms"]["baseline"]["rates"][-1]
+        out["baseline_final"] = final
+        for c in out["arms"].values():
+            c["steps_to_baseline_final"] = (
+                steps_to_threshold(c["steps"], c["rates"], final) if final > 0 else None
+            )
+    return out
+
+
+def overlap(a: list[float], b: list[float]) -> bool:
+    return a[0] <= b[1] and b[0] <= a[1]
+
+
+def verdict(
+    success: dict[str, Any], reference: str = "baseline", paired: dict[str, dict[str, Any]] | None = None
+) -> list[str]:
+    """Plain sentences on what the intervals (and, given `paired_tests`' results, the paired test) allow."""
+    if reference not in success:
+        return ["No baseline arm: no comparison."]
+    out = []
+    for arm in success:
+        if arm == reference:
+            continue
+        for cond, c in success[arm].items():
+            r = success[reference][cond]
+            diff = c["rate"] - r["rate"]
+            head = f"- {arm} vs {reference}, {cond}: {c['rate']:.2f} vs {r['rate']:.2f} ({diff:+.2f})"
+            test = (paired or {}).get(f"{arm} vs {reference} | {cond}")
+            p = f", paired McNemar p = {test['mcnemar_p']:.3f}" if test else ""
+            if overlap(c["ci95"], r["ci95"]):
+                out.append(f"{head}{p}; the 95% intervals overlap, so this budget does not decide it.")
+            else:
+                better = "better" if diff > 0 else "worse"
+                out.append(f"{head}{p}; the intervals do not overlap: {arm} is {better}.")
+    return out
+
+
+def machine_summary() -> dict[str, Any]:
+    import os
+
+    import torch
+
+    return {
+        "summary": f"{platform.machine()} CPU, {os.cpu_count()} cores, torch {torch.__version__}, Python {platform.python_version()}",
+        "cores": os.cpu_count(),
+        "torch": torch.__version__,
+        "python": platform.python_version(),
+        "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
+    }
