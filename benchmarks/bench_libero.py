@@ -1,10 +1,13 @@
-"""LIBERO env steps/s with two 128x128 cameras (agentview + wrist), gazevla's fast render settings.
+"""LIBERO env steps/s with two 128x128 cameras (agentview + wrist), and the scripted expert's success per task.
 
     bash scripts/libero_env.sh python benchmarks/bench_libero.py [--steps 200] [--suite libero_spatial]
+    bash scripts/libero_env.sh python benchmarks/bench_libero.py --expert-inits 5 [--expert-noise 0.1]
 
 Needs the LIBERO venv (scripts/libero_env.sh); elsewhere prints {"skipped": "..."} and exits 0. Times zero
 actions (arm still) on one task, excluding build and reset, plus physics-only steps (no cameras) for
-comparison, and the time of a reset. Prints one JSON object.
+comparison, and the time of a reset. `--expert-inits N` instead rolls `SpatialExpert` out on initial states
+0..N-1 of every LIBERO-Spatial task (physics only, no cameras: the expert reads object poses) and reports
+successes, episode lengths and wall time per task. Prints one JSON object.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 
 
@@ -46,17 +50,72 @@ def run(suite: str, steps: int, cameras: tuple[str, ...], size: int) -> dict[str
     }
 
 
+def expert_report(inits: int, noise: float, max_steps: int) -> dict[str, object]:
+    """SpatialExpert's success on initial states 0..inits-1 of each LIBERO-Spatial task."""
+    from gazevla.envs.libero import LiberoEnv
+    from gazevla.envs.libero_expert import SpatialExpert
+    from gazevla.envs.rollout import noise_seed
+
+    tasks = {}
+    t_all = time.perf_counter()
+    for t in range(10):
+        env = LiberoEnv(f"libero_spatial/{t}", cameras=(), max_steps=max_steps)
+        t0 = time.perf_counter()
+        ok, lengths, failed = 0, [], []
+        for k in range(inits):
+            env.reset(seed=k)
+            expert = SpatialExpert(noise=noise)
+            expert.reset(env, noise_seed(env.task, k))
+            for step in range(1, max_steps + 1):  # noqa: B007 (step is the episode length)
+                _, _, terminated, truncated, info = env.step(expert(env))
+                if terminated or truncated:
+                    break
+            if info["success"]:
+                ok += 1
+                lengths.append(step)
+            else:
+                failed.append(k)
+        tasks[env.task_names[t]] = {
+            "task": f"libero_spatial/{t}",
+            "successes": ok,
+            "n": inits,
+            "failed_init_states": failed,
+            "mean_length": sum(lengths) / len(lengths) if lengths else None,
+            "max_length": max(lengths) if lengths else None,
+            "seconds": time.perf_counter() - t0,
+        }
+        env.close()
+        print(f"{env.task_names[t]}: {ok}/{inits}", file=sys.stderr, flush=True)
+    total = sum(v["successes"] for v in tasks.values())
+    return {
+        "init_states": list(range(inits)),
+        "action_noise": noise,
+        "max_steps": max_steps,
+        "successes": total,
+        "n": 10 * inits,
+        "seconds": time.perf_counter() - t_all,
+        "tasks": tasks,
+    }
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--suite", default="libero_spatial")
     ap.add_argument("--size", type=int, default=128)
+    ap.add_argument("--expert-inits", type=int, default=0, help="report the expert on this many init states")
+    ap.add_argument("--expert-noise", type=float, default=0.0)
+    ap.add_argument("--expert-max-steps", type=int, default=300)
     args = ap.parse_args()
     from gazevla.envs.libero import libero_available
 
     ok, why = libero_available()
     if not ok:
         print(json.dumps({"benchmark": "libero", "skipped": why}))
+        return 0
+    if args.expert_inits > 0:
+        report = expert_report(args.expert_inits, args.expert_noise, args.expert_max_steps)
+        print(json.dumps({"benchmark": "libero_expert", **report}, indent=1))
         return 0
     from gazevla.envs.render import select_gl_backend
 

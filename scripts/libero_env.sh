@@ -39,6 +39,12 @@ else
     "$VENV/bin/pip" install -q --no-deps "$LIBERO_REQ"
     echo "$want" >"$stamp"
 fi
+# gazevla's own runtime dependencies, so that `gazevla collect/priors/train/eval --env libero` run here too
+# (installed once, outside the stamp: adding them does not rebuild the venv).
+RUNTIME=("tyro>=0.9" "tqdm>=4.66" "safetensors>=0.4" "accelerate>=1.0")
+if ! "$VENV/bin/python" -c "import tyro, tqdm, safetensors, accelerate" 2>/dev/null; then
+    "$VENV/bin/pip" install -q "${RUNTIME[@]}"
+fi
 # Follow the checkout (seconds): gazevla's LIBERO wrapper needs only numpy, gymnasium and mujoco from here.
 "$VENV/bin/pip" install -q --no-deps --no-build-isolation -e "$ROOT"
 

