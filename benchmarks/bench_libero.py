@@ -5,7 +5,8 @@
 
 Needs the LIBERO venv (scripts/libero_env.sh); elsewhere prints {"skipped": "..."} and exits 0. Times zero
 actions (arm still) on one task, excluding build and reset, plus physics-only steps (no cameras) for
-comparison, and the time of a reset. `--expert-inits N` instead rolls `SpatialExpert` out on initial states
+comparison, with the render copy's simplified meshes (LiberoEnv's default) and with the full meshes, and the
+time of a reset. `--expert-inits N` instead rolls `SpatialExpert` out on initial states
 0..N-1 of every LIBERO-Spatial task (physics only, no cameras: the expert reads object poses) and reports
 successes, episode lengths and wall time per task. Prints one JSON object.
 """
@@ -19,13 +20,22 @@ import sys
 import time
 
 
-def run(suite: str, steps: int, cameras: tuple[str, ...], size: int) -> dict[str, float]:
+def run(
+    suite: str, steps: int, cameras: tuple[str, ...], size: int, mesh_cell: object = "auto"
+) -> dict[str, float]:
     import numpy as np
 
     from gazevla.envs.libero import LiberoEnv
 
     t0 = time.perf_counter()
-    env = LiberoEnv(suite, cameras=cameras, image_size=size, max_steps=10**6, terminate_on_success=False)
+    env = LiberoEnv(
+        suite,
+        cameras=cameras,
+        image_size=size,
+        max_steps=10**6,
+        terminate_on_success=False,
+        mesh_cell=mesh_cell,
+    )
     build = time.perf_counter() - t0
     t0 = time.perf_counter()
     env.reset(seed=0)
@@ -127,6 +137,10 @@ def main() -> int:
         "gl_backend": select_gl_backend(),
         "load_avg_before": os.getloadavg()[0],
         "two_cameras": run(args.suite, args.steps, ("agentview", "robot0_eye_in_hand"), args.size),
+        # the same with robosuite's full meshes (no simplified render copy): the speed before it
+        "two_cameras_full_meshes": run(
+            args.suite, args.steps, ("agentview", "robot0_eye_in_hand"), args.size, mesh_cell=None
+        ),
         "physics_only": run(args.suite, args.steps, (), args.size),
         "load_avg_after": os.getloadavg()[0],
     }

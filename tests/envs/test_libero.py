@@ -50,7 +50,7 @@ def test_reset_step_images_state_instruction(env):
     # gripper projects where the image says: into the upper half, inside the frame.
     uv = env.project(info["hand_pos"], "agentview")
     assert 0 < uv[0] < 1 and 0 < uv[1] < 0.6, uv
-    raw = env._renderer.render_raw(env.physics_data, env._cam_ids["agentview"]).copy()
+    raw = env._renderer.render_raw(env._render_data(), env._cam_ids["agentview"]).copy()
     np.testing.assert_array_equal(obs["images"]["agentview"], raw[::-1, ::-1])
 
 

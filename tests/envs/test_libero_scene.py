@@ -73,3 +73,18 @@ def test_axis_angle_and_yaw():
 def test_expert_validates_noise():
     with pytest.raises(ValueError, match="noise"):
         SpatialExpert(noise=-0.1)
+
+
+def test_decimation_keeps_each_faces_texture_coordinates():
+    from gazevla.envs.libero_render import decimate_with_texcoords
+
+    # two triangles sharing an edge, plus a sliver whose corners all fall into one grid cube
+    vert = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0.001, 0, 0], [0, 0.001, 0]], float)
+    face = np.array([[0, 1, 2], [1, 3, 2], [0, 4, 5]])
+    tex = np.array([[10, 11, 12], [13, 14, 15], [16, 17, 18]])
+    v, f, t, kept = decimate_with_texcoords(vert, face, tex, cell=0.01)
+    assert len(v) == 4 and f.shape == (2, 3) and kept.tolist() == [0, 1]
+    np.testing.assert_array_equal(t, tex[:2])
+    np.testing.assert_allclose(v[f[0]][:, :2].sum(), 2.0005, atol=1e-3)  # the merged corner is the mean
+    _, _, none, _ = decimate_with_texcoords(vert, face, None, cell=0.01)
+    assert none is None

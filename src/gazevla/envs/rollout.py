@@ -59,6 +59,7 @@ def record_rollout(
     frames: dict[str, list[np.ndarray]] = {c: [] for c in env.cameras}
     states, actions, rewards, successes, contacts, grasps = [], [], [], [], [], []
     points: dict[str, list[np.ndarray]] = {}
+    uvs: dict[str, list[np.ndarray]] = {}
     success = False
     for _ in range(max_steps):
         for c in env.cameras:
@@ -69,6 +70,8 @@ def record_rollout(
         for k in KEY_POINTS:
             if f"{k}_pos" in info:
                 points.setdefault(k, []).append(info[f"{k}_pos"])
+                for c in env.cameras:  # now: a camera on the wrist moves with the arm
+                    uvs.setdefault(f"{k}_uv.{c}", []).append(env.project(info[f"{k}_pos"], c))
         action = act(obs, info)
         obs, reward, _, truncated, info = env.step(action)
         actions.append(action)
@@ -86,10 +89,9 @@ def record_rollout(
         "success": np.asarray(successes, dtype=bool),
     }
     for k, seq in points.items():
-        pos = np.asarray(seq, dtype=np.float64)
-        extras[f"{k}_pos"] = pos.astype(np.float32)
-        for c in env.cameras:
-            extras[f"{k}_uv.{c}"] = env.project(pos, c).astype(np.float32)
+        extras[f"{k}_pos"] = np.asarray(seq, dtype=np.float32)
+    for k, seq in uvs.items():
+        extras[k] = np.asarray(seq, dtype=np.float32)
     return Recording(
         frames={c: np.stack(frames[c]) for c in env.cameras},
         state=np.asarray(states, dtype=np.float32),

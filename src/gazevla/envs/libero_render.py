@@ -1,0 +1,118 @@
+"""A render-only copy of a LIBERO task's model with simplified meshes, textures kept (for `LiberoEnv`).
+
+    visual = build_libero_visual_model(xml, physics_model, mesh_cell=0.005)   # compile once per task
+    sync_appearance(physics_model, visual)                                     # after robosuite's resets
+
+Why. LIBERO's scenes carry about 300k mesh triangles (the Panda's visual meshes, the objects, the furniture);
+drawing them is most of a step's time at 128 px on a CPU (Mesa llvmpipe). As in `gazevla.envs.render` for
+Meta-World, the render copy simplifies every mesh of at least `min_faces` faces by vertex clustering on a grid
+of `mesh_cell` metres; unlike Meta-World's objects, many of LIBERO's meshes are textured, so each surviving
+triangle keeps the texture coordinates of the original triangle it came from (MuJoCo indexes texture
+coordinates per face, independently of the vertices), and untextured meshes are simplified as before.
+
+Physics never sees the copy: `gazevla.envs.render.VisualMirror` mirrors the state into it before each render.
+robosuite changes a few appearance fields of the compiled physics model at runtime (it hides some sites by
+setting their alpha); `sync_appearance` copies those into the copy.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+# Model fields robosuite/LIBERO set on the compiled model after compiling (appearance only).
+APPEARANCE_FIELDS = ("site_rgba", "site_size", "geom_rgba", "mat_rgba")
+
+
+def decimate_with_texcoords(
+    vert: np.ndarray, face: np.ndarray, facetex: np.ndarray | None, cell: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
+    """Vertex clustering on a grid of `cell` metres, keeping each surviving face's texture-coordinate indices.
+
+    vert (V, 3), face (F, 3) int, facetex (F, 3) int or None -> vert (V', 3) float64, face (F', 3) int64,
+    facetex (F', 3) int64 or None, kept (F',) int64 (the original face of each surviving one): vertices in
+    one grid cube merge (their mean), faces that collapse are dropped, and of faces that become identical the
+    first is kept (with its own texture coordinates)."""
+    q = np.floor(np.asarray(vert) / cell).astype(np.int64)
+    _, inv, counts = np.unique(q, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    merged = np.zeros((counts.size, 3))
+    np.add.at(merged, inv, np.asarray(vert, dtype=np.float64))
+    merged /= counts[:, None]
+    f = inv[np.asarray(face)]
+    keep = np.flatnonzero((f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2]))
+    _, first = np.unique(np.sort(f[keep], axis=1), axis=0, return_index=True)
+    keep = keep[np.sort(first)]
+    f = f[keep]
+    used = np.unique(f)
+    remap = np.full(len(merged), -1, dtype=np.int64)
+    remap[used] = np.arange(used.size)
+    ft = None if facetex is None else np.asarray(facetex, dtype=np.int64)[keep]
+    return merged[used], remap[f], ft, keep
+
+
+def _quat_to_mat(quat: np.ndarray) -> np.ndarray:
+    import mujoco
+
+    mat = np.zeros(9)
+    mujoco.mju_quat2Mat(mat, np.asarray(quat, dtype=np.float64))
+    return mat.reshape(3, 3)
+
+
+def build_libero_visual_model(
+    xml_path: str | Path,
+    physics_model: Any,
+    mesh_cell: float,
+    min_faces: int = 500,
+    relative_cell: float = 1 / 40,
+) -> Any:
+    """Compile `xml_path` (the XML robosuite compiled `physics_model` from) with its meshes of >= `min_faces`
+    faces simplified, texture coordinates kept. A mesh's grid cell is `mesh_cell` metres, or `relative_cell`
+    of its largest extent when that is smaller (the small task objects keep their shape: a bowl is 42k
+    triangles in 11 cm). Same bodies, geoms, cameras, lights in the same order as `physics_model` (checked)."""
+    import mujoco
+
+    if not mesh_cell > 0:
+        raise ValueError(f"mesh_cell must be > 0 metres, got {mesh_cell}")
+    m = physics_model
+    spec = mujoco.MjSpec.from_file(str(xml_path))
+    for sm in spec.meshes:
+        mid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_MESH, sm.name)
+        if mid < 0 or m.mesh_facenum[mid] < min_faces:
+            continue
+        va, vn = m.mesh_vertadr[mid], m.mesh_vertnum[mid]
+        fa, fn = m.mesh_faceadr[mid], m.mesh_facenum[mid]
+        ta, tn = m.mesh_texcoordadr[mid], m.mesh_texcoordnum[mid]
+        facetex = m.mesh_facetexcoord[fa : fa + fn] if tn > 0 else None
+        v = m.mesh_vert[va : va + vn]
+        cell = min(mesh_cell, relative_cell * float((v.max(axis=0) - v.min(axis=0)).max()))
+        vert, face, ft, _ = decimate_with_texcoords(v, m.mesh_face[fa : fa + fn], facetex, cell)
+        if len(face) < 4:
+            continue
+        # Compiled vertices live in the mesh's inertial frame; move them back to the file's frame so that the
+        # compiler re-derives the geom's placement as it did for the original mesh.
+        vert = vert @ _quat_to_mat(m.mesh_quat[mid]).T + m.mesh_pos[mid]
+        sm.file = ""
+        sm.scale = [1.0, 1.0, 1.0]
+        sm.uservert = vert.reshape(-1).tolist()
+        sm.userface = face.reshape(-1).tolist()
+        sm.usernormal = []  # recomputed by the compiler (the compiled ones did not carry over: measured worse)
+        sm.usertexcoord = m.mesh_texcoord[ta : ta + tn].reshape(-1).tolist() if ft is not None else []
+        sm.userfacetexcoord = ft.reshape(-1).tolist() if ft is not None else []
+    visual = spec.compile()
+    for attr in ("nbody", "njnt", "nq", "ngeom", "nsite", "ncam", "nlight", "nmat", "ntex"):
+        if getattr(visual, attr) != getattr(m, attr):
+            raise RuntimeError(
+                f"the render copy of {xml_path} differs from the physics model in {attr} "
+                f"({getattr(visual, attr)} vs {getattr(m, attr)}); use mesh_cell=None"
+            )
+    sync_appearance(m, visual)
+    return visual
+
+
+def sync_appearance(physics_model: Any, visual_model: Any) -> None:
+    """Copy the appearance fields robosuite changes at runtime (APPEARANCE_FIELDS) into the render copy."""
+    for name in APPEARANCE_FIELDS:
+        getattr(visual_model, name)[:] = getattr(physics_model, name)
