@@ -29,7 +29,7 @@ opening), action, and extras
     obj_uv.<cam>, goal_uv.<cam>, hand_uv.<cam>  float32 (T, 2)  normalised (u right, v down) in the image as
                                                                 stored; outside [0, 1] when out of view
     contact, grasp                              bool (T,)       gripper touches / both fingers hold an object
-    reward, success                             (T,)            Meta-World's, after executing action t
+    reward, success                             (T,)            the simulator's, after executing action t
 and meta: seed, setup (MT1 benchmark seed and index), success, fps, env, env_name, steps, expert,
 camera geometry, settings. Workers: one process per core by default, each with its own environment.
 The per-simulator parts (tasks, environments, the rollout) are collector objects: `SIMULATORS`.

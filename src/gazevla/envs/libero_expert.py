@@ -10,19 +10,28 @@ Every LIBERO-Spatial task is `(On <a black bowl> plate_1)`: pick the bowl up by 
 The expert is a phase machine over the privileged facts of `LiberoEnv` (`key_points`: the bowl's and the plate's
 body positions, the point between the finger pads):
 
-    above      the open gripper goes to `hover` metres above the grasp point on the bowl's rim
+    above      the open gripper rises to a safe height if needed, then goes above the grasp point
     descend    down to the grasp point, the fingers straddling the rim's wall
     close      the gripper closes (`close_steps` steps, the arm holding still)
-    lift       straight up to `carry_height` above the plate
+    lift       straight up to the carrying height
     carry      over the plate: the hand's target is the plate plus the bowl's current offset from the hand
-    lower      down until the bowl is `release_gap` above its resting height on the plate
+    lower      down until the bowl is `release_gap` above the plate's origin
     open       the gripper opens (`open_steps` steps)
     retreat    straight up
 
-The grasp point is on the bowl's rim on the side (along the fingers' closing axis, world y for the default
-gripper orientation) farther from the other objects; the gripper keeps a fixed orientation (pointing down, the
-fingers closing along world y). A phase ends when the hand is within `tolerance` of its target (or after
-`max_phase_steps`), so a rollout adapts to where the bowl actually is.
+Grasp. The grasp point is `rim_radius` from the bowl's centre along the fingers' closing axis, so that the
+inner finger comes down inside the bowl and the outer one outside its wall. The gripper points down; its yaw
+and the side of the bowl are chosen once per episode from CANDIDATES (yaws 0, 90, +-45, ... degrees, both
+sides): the first whose outer finger's path down is free of the obstacle boxes (`SceneFacts.obstacles`: the
+other objects' and the furniture's collision geoms) with `min_gap` to spare; this is what takes the bowl out of
+the cabinet's drawer or from next to the cookie box. Heights: the empty hand moves sideways `clearance` above
+the obstacles near its path (within `corridor`), the carried bowl likewise; the bowl is lifted by `min_lift`
+at least. A phase ends when the hand is within `tolerance` of its target (or after `max_phase_steps`); a bowl
+that slips `slip` down in the hand while carried sends the expert back to `above` (`retries` times), so a
+rollout adapts to where the bowl actually is.
+
+Success, measured with `benchmarks/bench_libero.py --expert-inits 10` (init states 0-9 of the 10 tasks, no
+noise, 300 steps): 96/100; the misses are in the drawer (task 4) and next-to-the-cookie-box (task 6) tasks.
 
 Control. OSC_POSE delta actions: robosuite's OSC moves its goal by `action * output_max` (read from the
 controller: 0.05 m and 0.5 rad per unit by default), so the position action is `gain * error / output_max` and
