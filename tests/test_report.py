@@ -118,6 +118,9 @@ def test_markdown_and_readme_block(tmp_path):
         r["min_distance"] = 0.05
     report["distance"] = {"table": distance_table(recs), "paired": paired_distance_tests(recs)}
     assert "| baseline | 0.0500 [0.0500, 0.0500] |" in markdown(report)
+    report["val_loss"] = {"baseline@s0": 0.2, "baseline@s1": 0.1, "gaze@s0": 0.05, "gaze@s1": None}
+    assert "| baseline | 0.2000 | 0.1000 | 0.1500 |" in markdown(report)
+    assert "| gaze | 0.0500 | - | 0.0500 |" in markdown(report)
     run = tmp_path / "run"
     (run / "figures").mkdir(parents=True)
     (run / "figures" / "attention.png").write_bytes(b"png")

@@ -387,6 +387,10 @@ class Experiment:
             "verdict": verdict(success, paired=paired),
             "convergence": conv,
             "glc": results["priors"].get("glc"),
+            "val_loss": {
+                name: r.get("final_metrics", {}).get("val/loss_action")
+                for name, r in results["train"]["runs"].items()
+            },
             "alignment": {
                 n.split("@")[0] if len(c.train_seeds) == 1 else n: v
                 for n, v in results["align"]["alignment"].items()

@@ -52,6 +52,30 @@ def paired_lines(report: dict[str, Any]) -> list[str]:
     return lines
 
 
+def val_loss_lines(report: dict[str, Any]) -> list[str]:
+    """Each arm's final action loss on its run's validation episodes (demonstrations held out of training, on
+    training setups; a run's seed fixes the split, so arms with the same seed share it)."""
+    runs = {k: v for k, v in (report.get("val_loss") or {}).items() if v is not None}
+    if not runs:
+        return []
+    by_arm: dict[str, dict[str, float]] = {}
+    for name, v in runs.items():
+        arm, _, seed = name.partition("@")
+        by_arm.setdefault(arm, {})[seed or "-"] = v
+    seeds = sorted({s for d in by_arm.values() for s in d})
+    lines = [
+        "",
+        "## Action loss on held-out demonstrations (end of training; lower is better)",
+        "",
+        "| arm | " + " | ".join(seeds) + " | mean |",
+        "|---|" + "---|" * (len(seeds) + 1),
+    ]
+    for arm, d in by_arm.items():
+        cells = [f"{d[s]:.4f}" if s in d else "-" for s in seeds]
+        lines.append(f"| {arm} | " + " | ".join(cells) + f" | {sum(d.values()) / len(d):.4f} |")
+    return lines
+
+
 def distance_lines(report: dict[str, Any], conds: list[str]) -> list[str]:
     """The closest-approach table and its paired comparisons, when the report has them."""
     dist = report.get("distance")
@@ -123,6 +147,7 @@ def markdown(report: dict[str, Any]) -> str:
     ]
     lines += paired_lines(report)
     lines += distance_lines(report, conds)
+    lines += val_loss_lines(report)
     lines += ["", "## What the numbers say", "", *report["verdict"], ""]
     if report.get("convergence"):
         conv = report["convergence"]
@@ -229,7 +254,13 @@ def readme_block(report: dict[str, Any], figure: str) -> str:
         lines.append("")
     if len(report["train"]["seeds"]) > 1:  # the powered comparison: per task, paired tests, distances
         conds = list(next(iter(report["success"].values())))
-        lines += [*per_task_lines(report), *paired_lines(report), *distance_lines(report, conds), ""]
+        lines += [
+            *per_task_lines(report),
+            *paired_lines(report),
+            *distance_lines(report, conds),
+            *val_loss_lines(report),
+            "",
+        ]
     lines += [*report["verdict"], "", f"![attention]({figure})", ""]
     return "\n".join(lines)
 
