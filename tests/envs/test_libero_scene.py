@@ -70,9 +70,11 @@ def test_axis_angle_and_yaw():
     np.testing.assert_allclose(yawed(0.0), DOWN_ALONG_Y)
 
 
-def test_expert_validates_noise():
+def test_expert_validates_noise_and_needs_a_reset():
     with pytest.raises(ValueError, match="noise"):
         SpatialExpert(noise=-0.1)
+    with pytest.raises(RuntimeError, match="reset"):
+        SpatialExpert()(None)
 
 
 def test_decimation_keeps_each_faces_texture_coordinates():

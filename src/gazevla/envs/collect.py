@@ -10,7 +10,9 @@ tasks of the suite, `libero_spatial/3`, `libero_spatial/<task name>`) and rolls 
 `gazevla.envs.libero_expert.SpatialExpert` on their fixed initial states (seed s = initial state s % 50); its
 episodes carry the same extras, cameras named as `gazevla import hdf5` names LIBERO's (agentview_rgb,
 eye_in_hand_rgb), LIBERO's 8-d state and 7-d action, and the LIBERO task name as task (see
-`gazevla.envs.libero_expert`). Nothing here imports LIBERO unless --env libero.
+`gazevla.envs.libero_expert`). Nothing here imports LIBERO unless --env libero. `gazevla eval --env libero` maps
+seeds to initial states the same way (its default seed_start 1000 is initial state 0), so evaluate on initial
+states the demonstrations did not use: `--seed-start 40` for demos collected on seeds 0-39.
 
 For each task it rolls out the expert on setup seeds seed_base, seed_base + 1, ... (see
 `gazevla.envs.metaworld` for how a seed fixes the object and goal positions), keeps the episodes that succeed
