@@ -42,6 +42,22 @@ def test_metaworld_defaults_and_fingerprint_are_unchanged():
     assert fingerprint(cfg) == fingerprint(resolve(CollectConfig(cameras=("corner2",), max_steps=200)))
 
 
+@pytest.mark.slow
+@needs_libero
+def test_libero_task_specs_are_canonical():
+    cfg = resolve(CollectConfig(env="libero", tasks=("libero_spatial",)))
+    assert cfg.tasks == tuple(f"libero_spatial/{i}" for i in range(10))
+    assert cfg.cameras == CAMERAS and cfg.max_steps == 220
+    name = "pick_up_the_black_bowl_on_the_stove_and_place_it_on_the_plate"
+    assert resolve(CollectConfig(env="libero", tasks=(f"libero_spatial/{name}",))).tasks == (
+        "libero_spatial/7",
+    )
+    with pytest.raises(CollectError, match="libero_spatial only"):
+        resolve(CollectConfig(env="libero", tasks=("libero_goal/0",)))
+    with pytest.raises(CollectError, match="no task"):
+        resolve(CollectConfig(env="libero", tasks=("libero_spatial/nope",)))
+
+
 @pytest.fixture(scope="module")
 def demos(tmp_path_factory):
     out = tmp_path_factory.mktemp("libero_demos")
