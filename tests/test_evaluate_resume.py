@@ -62,3 +62,15 @@ def test_killed_evaluation_resumes_from_log(tmp_path, fake_rollouts):
     (ckpt / "model.safetensors").write_bytes(b"other weights")
     ev.run_jobs(jobs[:2], 1, 10, None, progress=False, log_path=log_path)
     assert calls == [("a", 0), ("a", 1)]
+
+
+def test_libero_preset_avoids_demo_states_and_video_names_are_flat(tmp_path):
+    from dataclasses import replace
+
+    cfg = replace(ev.presets()["libero"](), out=tmp_path, videos=1)
+    assert cfg.env == "libero" and len(cfg.tasks) == 10
+    assert all(25 <= (cfg.seed_start + i) % 50 for i in range(cfg.episodes))  # initial states 25..49
+    jobs = ev.make_jobs(cfg, {"gaze": tmp_path / "ckpt"})
+    videos = [j.video for j in jobs if j.video]
+    assert len(videos) == 10 and all(v.startswith(str(tmp_path / "videos") + "/") for v in videos)
+    assert all("/" not in v.rsplit("videos/", 1)[1] for v in videos)

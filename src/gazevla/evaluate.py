@@ -4,7 +4,9 @@
         --conditions clean dim:0.7 gaussian_noise:0.5
 
 `--env libero --tasks libero_spatial` evaluates in LIBERO instead (run it with the LIBERO venv's Python:
-`bash scripts/libero_env.sh gazevla eval ...`). Every checkpoint ("arm") is rolled out on the same list of setup seeds per task and under every condition
+`bash scripts/libero_env.sh gazevla eval ...`). A LIBERO setup seed is a fixed initial state (`s % 50` for
+one task), so the default seed_start (1000) is initial state 0, where demonstrations start too:
+`--preset libero` evaluates LIBERO-Spatial task by task on initial states 25..49 instead. Every checkpoint ("arm") is rolled out on the same list of setup seeds per task and under every condition
 (a perturbation spec, `gazevla.envs.perturbations`), so arms form pairs seed by seed. Evaluation seeds start at
 `seed_start` (default 1000, i.e. Meta-World benchmark seed 20's setups), away from the setups demonstrations
 are collected on (seeds from 0). One worker process per core; each loads each checkpoint once.
@@ -213,9 +215,8 @@ def make_jobs(cfg: EvalConfig, arms: dict[str, Path]) -> list[Job]:
                     video = None
                     if i < cfg.videos:
                         tag = condition.replace(":", "").replace("+", "_")
-                        video = str(
-                            Path(cfg.out) / "videos" / f"{arm}__{task}__{tag}__seed{cfg.seed_start + i}.gif"
-                        )
+                        name = f"{arm}__{task}__{tag}__seed{cfg.seed_start + i}".replace("/", "-")
+                        video = str(Path(cfg.out) / "videos" / f"{name}.gif")
                     jobs.append(Job(arm, str(ckpt), task, condition, cfg.seed_start + i, video))
     return jobs
 
@@ -394,6 +395,15 @@ def presets() -> dict[str, Any]:
             episodes=2, max_steps=20, workers=1, videos=1, conditions=("clean", "dim:0.7")
         ),
         "quick": lambda: EvalConfig(episodes=10, conditions=("clean", "dim:0.7", "gaussian_noise:0.5")),
+        # LIBERO-Spatial task by task on initial states 25..49, leaving 0..24 to `gazevla collect --env libero`.
+        "libero": lambda: EvalConfig(
+            env="libero",
+            tasks=tuple(f"libero_spatial/{k}" for k in range(10)),
+            episodes=25,
+            seed_start=25,
+            max_steps=220,
+            workers=os.cpu_count() or 2,
+        ),
         "paper": lambda: EvalConfig(
             episodes=50,
             max_steps=200,
