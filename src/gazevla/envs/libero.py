@@ -157,14 +157,8 @@ class LiberoEnv(gym.Env):
         self._mj = mujoco
         self.task = task
         self.suite = suite
-        names = list(_suite(suite).get_task_names())
-        if isinstance(which, str):
-            if which not in names:
-                raise KeyError(f"no task {which!r} in {suite}; tasks: {names}")
-            which = names.index(which)
-        if which is not None and not 0 <= which < len(names):
-            raise KeyError(f"{suite} has tasks 0..{len(names) - 1}, got {which}")
-        self.task_names = names
+        _, which = resolve_task(task)
+        self.task_names = list(_suite(suite).get_task_names())
         self._fixed_task = which
         self.image_size = (int(H), int(W))
         self.max_steps = max_steps
