@@ -9,6 +9,7 @@ from gazevla.report import (
     markdown,
     paired_distance_tests,
     paired_tests,
+    per_seed_table,
     readme_block,
     success_table,
     update_readme,
@@ -69,7 +70,10 @@ def test_distances_pool_seeds_and_pair_by_setup():
 def test_verdict_cites_the_paired_test():
     recs = records("baseline@s0", [0] * 10) + records("gaze@s0", [1] * 10)
     v = verdict(success_table(recs), paired=paired_tests(recs))
-    assert "paired McNemar p = 0.002" in v[0]
+    assert "paired McNemar p = 0.00195 < 0.05: gaze is better" in v[0]
+    recs = records("baseline@s0", [0, 1, 0, 1]) + records("gaze@s0", [1, 0, 1, 1])
+    v = verdict(success_table(recs), paired=paired_tests(recs))
+    assert "no difference shown at this budget (the 95% intervals overlap)" in v[0]
 
 
 def test_convergence_steps_to_threshold_and_baseline_final():
@@ -132,6 +136,14 @@ def test_markdown_and_readme_block(tmp_path):
     assert "old" not in text and "| gaze | 2/2 = 1.00" in text and text.endswith("end\n")
     assert (tmp_path / "docs" / "quick-results-attention.png").exists()
     assert "attention" in readme_block(report, "f.png")
+    report["train"]["seeds"] = [0, 1]  # a multi-seed run's block carries the paired table, read from JSON
+    reloaded = json.loads(json.dumps(report, sort_keys=True))
+    assert "| gaze vs baseline | clean | 2 | 1 | 0 |" in readme_block(reloaded, "f.png")
+    report["per_seed"] = per_seed_table(recs)
+    assert report["per_seed"] == {"baseline@s0": {"clean": [1, 2]}, "gaze@s0": {"clean": [2, 2]}}
+    assert "| gaze@s0 | 2/2 |" in readme_block(report, "f.png") and "| baseline@s0 | 1/2 |" in markdown(
+        report
+    )
 
 
 def test_eval_worker_rejects_an_unknown_simulator():

@@ -317,6 +317,7 @@ class Experiment:
             markdown,
             paired_distance_tests,
             paired_tests,
+            per_seed_table,
             plot_convergence,
             plot_success,
             success_table,
@@ -327,7 +328,12 @@ class Experiment:
         c = self.cfg
         ev = json.loads(Path(results["eval"]["eval_info"]).read_text())
         success = success_table(ev["episodes"])
+        # Each arm against the baseline, and the gaze arm against its own perturbed-gaze control.
         paired = paired_tests(ev["episodes"])
+        if {"gaze", "perturbed"} <= set(c.arms):
+            paired.update(
+                paired_tests([r for r in ev["episodes"] if not r["arm"].startswith("baseline")], "perturbed")
+            )
         conv_path = results["converge"]["eval_info"]
         conv_records = json.loads(Path(conv_path).read_text())["episodes"] if conv_path else []
         last_seed = c.eval.seed_start + min(c.convergence_episodes, c.eval.episodes)
@@ -380,11 +386,27 @@ class Experiment:
             },
             "success": success,
             "paired": paired,
+            "per_seed": per_seed_table(ev["episodes"]) if len(c.train_seeds) > 1 else None,
             "distance": {
                 "table": distance_table(ev["episodes"]),
-                "paired": paired_distance_tests(ev["episodes"]),
+                "paired": {
+                    **paired_distance_tests(ev["episodes"]),
+                    **(
+                        paired_distance_tests(
+                            [r for r in ev["episodes"] if r["arm"].split("@")[0] in ("gaze", "perturbed")],
+                            reference="perturbed",
+                        )
+                        if {"gaze", "perturbed"} <= set(c.arms)
+                        else {}
+                    ),
+                },
             },
-            "verdict": verdict(success, paired=paired),
+            "verdict": verdict(success, paired=paired)
+            + (
+                verdict({a: success[a] for a in ("gaze", "perturbed")}, "perturbed", paired)
+                if {"gaze", "perturbed"} <= set(success)
+                else []
+            ),
             "convergence": conv,
             "glc": results["priors"].get("glc"),
             "val_loss": {

@@ -11,6 +11,7 @@ from gazevla.report.tables import (
     overlap,
     paired_distance_tests,
     paired_tests,
+    per_seed_table,
     success_table,
     verdict,
 )
@@ -26,6 +27,7 @@ __all__ = [
     "overlap",
     "paired_distance_tests",
     "paired_tests",
+    "per_seed_table",
     "plot_attention",
     "plot_convergence",
     "plot_success",

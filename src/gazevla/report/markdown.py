@@ -32,6 +32,26 @@ def per_task_lines(report: dict[str, Any], condition: str = "clean") -> list[str
     return lines
 
 
+def per_seed_lines(report: dict[str, Any]) -> list[str]:
+    """Successes per training seed (pooled over tasks), one row per run."""
+    runs = report.get("per_seed")
+    if not runs:
+        return []
+    conds = list(next(iter(runs.values())))
+    lines = [
+        "",
+        "Per training seed (successes over tasks):",
+        "",
+        "| run | " + " | ".join(conds) + " |",
+        "|---|" + "---|" * len(conds),
+    ]
+    for run, row in runs.items():
+        lines.append(
+            f"| {run} | " + " | ".join(f"{row[c][0]}/{row[c][1]}" if c in row else "-" for c in conds) + " |"
+        )
+    return lines
+
+
 def paired_lines(report: dict[str, Any]) -> list[str]:
     """Each arm against the baseline on the same setups: exact McNemar and Fisher p-values."""
     if not report.get("paired"):
@@ -40,14 +60,15 @@ def paired_lines(report: dict[str, Any]) -> list[str]:
         "",
         "## Paired comparisons (same setups; exact McNemar on discordant episodes, Fisher on counts)",
         "",
-        "| comparison | condition | pairs | arm only | baseline only | McNemar p | Fisher p |",
+        "| comparison (A vs B) | condition | pairs | only A solved | only B solved | McNemar p | Fisher p |",
         "|---|---|---|---|---|---|---|",
     ]
     for k, v in report["paired"].items():
         comparison, condition = k.split(" | ", 1)
-        vals = list(v.values())
+        a, b = comparison.split(" vs ", 1)
         lines.append(
-            f"| {comparison} | {condition} | {vals[0]} | {vals[1]} | {vals[2]} | {v['mcnemar_p']:.3f} | {v['fisher_p']:.3f} |"
+            f"| {comparison} | {condition} | {v['pairs']} | {v[f'{a}_only']} | {v[f'{b}_only']} | "
+            f"{v['mcnemar_p']:.3f} | {v['fisher_p']:.3f} |"
         )
     return lines
 
@@ -74,6 +95,28 @@ def val_loss_lines(report: dict[str, Any]) -> list[str]:
         cells = [f"{d[s]:.4f}" if s in d else "-" for s in seeds]
         lines.append(f"| {arm} | " + " | ".join(cells) + f" | {sum(d.values()) / len(d):.4f} |")
     return lines
+
+
+def convergence_lines(report: dict[str, Any]) -> list[str]:
+    """Clean success at each checkpoint, steps to the threshold and to the baseline's final success."""
+    conv = report.get("convergence")
+    if not conv:
+        return []
+    steps = next(iter(conv["arms"].values()))["steps"]
+    lines = [
+        "## Convergence (clean success at checkpoints)",
+        "",
+        "| arm | " + " | ".join(str(s) for s in steps) + f" | steps to {conv['threshold']:.2f} | steps to "
+        "baseline's final |",
+        "|---|" + "---|" * (len(steps) + 2),
+    ]
+    for a, c in conv["arms"].items():
+        lines.append(
+            f"| {a} | "
+            + " | ".join(f"{r:.2f}" for r in c["rates"])
+            + f" | {c['steps_to_threshold']} | {c.get('steps_to_baseline_final')} |"
+        )
+    return [*lines, ""]
 
 
 def distance_lines(report: dict[str, Any], conds: list[str]) -> list[str]:
@@ -134,7 +177,7 @@ def markdown(report: dict[str, Any]) -> str:
         "|---|" + "---|" * len(conds),
     ]
     lines += [f"| {a} | " + " | ".join(fmt_cell(t[a][c]) for c in conds) + " |" for a in arms]
-    lines += ["", *per_task_lines(report)]
+    lines += ["", *per_task_lines(report), *per_seed_lines(report)]
     lines += [
         "",
         "Drop from clean (success rate points):",
@@ -149,24 +192,7 @@ def markdown(report: dict[str, Any]) -> str:
     lines += distance_lines(report, conds)
     lines += val_loss_lines(report)
     lines += ["", "## What the numbers say", "", *report["verdict"], ""]
-    if report.get("convergence"):
-        conv = report["convergence"]
-        lines += [
-            "## Convergence (clean success at checkpoints)",
-            "",
-            "| arm | "
-            + " | ".join(str(s) for s in next(iter(conv["arms"].values()))["steps"])
-            + " | steps to "
-            f"{conv['threshold']:.2f} | steps to baseline's final |",
-            "|---|" + "---|" * (len(next(iter(conv["arms"].values()))["steps"]) + 2),
-        ]
-        for a, c in conv["arms"].items():
-            lines.append(
-                f"| {a} | "
-                + " | ".join(f"{r:.2f}" for r in c["rates"])
-                + f" | {c['steps_to_threshold']} | {c.get('steps_to_baseline_final')} |"
-            )
-        lines.append("")
+    lines += convergence_lines(report)
     if report.get("glc") and report["glc"].get("eval"):
         g = report["glc"]["eval"]
         lines += [
@@ -256,10 +282,12 @@ def readme_block(report: dict[str, Any], figure: str) -> str:
         conds = list(next(iter(report["success"].values())))
         lines += [
             *per_task_lines(report),
+            *per_seed_lines(report),
             *paired_lines(report),
             *distance_lines(report, conds),
             *val_loss_lines(report),
             "",
+            *convergence_lines(report),
         ]
     lines += [*report["verdict"], "", f"![attention]({figure})", ""]
     return "\n".join(lines)

@@ -41,6 +41,17 @@ def success_table(records: list[dict[str, Any]]) -> dict[str, dict[str, dict[str
     return out
 
 
+def per_seed_table(records: list[dict[str, Any]]) -> dict[str, dict[str, list[int]]]:
+    """{arm@seed: {condition: [successes, n]}} over tasks: how consistent an effect is across training seeds
+    (the episodes of one training seed are not independent of each other; seeds are)."""
+    out: dict[str, dict[str, list[int]]] = {}
+    for r in records:
+        cell = out.setdefault(r["arm"], {}).setdefault(r["condition"], [0, 0])
+        cell[0] += int(bool(r["success"]))
+        cell[1] += 1
+    return dict(sorted(out.items()))
+
+
 def paired_tests(records: list[dict[str, Any]], reference: str = "baseline") -> dict[str, dict[str, Any]]:
     """Each arm against `reference` per condition: exact McNemar on episodes paired by (training seed, task,
     setup seed), and Fisher's exact test on the pooled counts."""
@@ -136,9 +147,13 @@ def overlap(a: list[float], b: list[float]) -> bool:
 
 
 def verdict(
-    success: dict[str, Any], reference: str = "baseline", paired: dict[str, dict[str, Any]] | None = None
+    success: dict[str, Any],
+    reference: str = "baseline",
+    paired: dict[str, dict[str, Any]] | None = None,
+    alpha: float = 0.05,
 ) -> list[str]:
-    """Plain sentences on what the intervals (and, given `paired_tests`' results, the paired test) allow."""
+    """Plain sentences on what the data allow one to conclude: with `paired_tests`' results, the paired exact
+    test on the shared setups decides (at `alpha`); without, only non-overlapping Wilson intervals do."""
     if reference not in success:
         return ["No baseline arm: no comparison."]
     out = []
@@ -149,13 +164,24 @@ def verdict(
             r = success[reference][cond]
             diff = c["rate"] - r["rate"]
             head = f"- {arm} vs {reference}, {cond}: {c['rate']:.2f} vs {r['rate']:.2f} ({diff:+.2f})"
+            apart = not overlap(c["ci95"], r["ci95"])
+            intervals = "the 95% intervals do not overlap" if apart else "the 95% intervals overlap"
+            better = "better" if diff > 0 else "worse"
             test = (paired or {}).get(f"{arm} vs {reference} | {cond}")
-            p = f", paired McNemar p = {test['mcnemar_p']:.3f}" if test else ""
-            if overlap(c["ci95"], r["ci95"]):
-                out.append(f"{head}{p}; the 95% intervals overlap, so this budget does not decide it.")
+            if test is not None:
+                p = test["mcnemar_p"]
+                if p < alpha:
+                    out.append(
+                        f"{head}; paired McNemar p = {p:.3g} < {alpha}: {arm} is {better} ({intervals})."
+                    )
+                else:
+                    out.append(
+                        f"{head}; paired McNemar p = {p:.3g}: no difference shown at this budget ({intervals})."
+                    )
+            elif apart:
+                out.append(f"{head}; {intervals}: {arm} is {better}.")
             else:
-                better = "better" if diff > 0 else "worse"
-                out.append(f"{head}{p}; the intervals do not overlap: {arm} is {better}.")
+                out.append(f"{head}; {intervals}, so this budget does not decide it.")
     return out
 
 
