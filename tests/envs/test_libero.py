@@ -135,3 +135,19 @@ def test_expert_grasps_and_places_the_bowl():
         np.testing.assert_allclose(runs[0], runs[1], atol=0.05)  # resets are not bit-exact (see above)
     finally:
         e.close()
+
+
+@pytest.mark.parametrize("suite", ["libero_object", "libero_goal", "libero_10"])
+def test_every_suite_resets_and_steps(suite):
+    from gazevla.envs.libero import SUITE_MAX_STEPS, LiberoEnv
+
+    e = LiberoEnv(f"{suite}/1", cameras=("agentview",), image_size=64, settle_steps=1)
+    try:
+        obs, info = e.reset(seed=2)
+        assert info["task_index"] == 1 and info["init_state_index"] == 2 and not info["success"]
+        assert obs["instruction"].strip() and obs["images"]["agentview"].std() > 5
+        obs, _, _, truncated, info = e.step(np.zeros(7, dtype=np.float32))
+        assert info["steps"] == 1 and not truncated and np.isfinite(obs["state"]).all()
+        assert e.max_steps == SUITE_MAX_STEPS[suite]
+    finally:
+        e.close()
