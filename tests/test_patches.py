@@ -1,6 +1,6 @@
 import pytest
 import torch
-from hypothesis import assume, given
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from gazevla.gaze.heatmaps import heatmaps_from_points
@@ -50,6 +50,7 @@ def test_pooling_conserves_mass_when_nothing_is_cropped(geom):
     assert pooled.sum().item() == pytest.approx(heat.sum().item(), rel=1e-9)
 
 
+@settings(suppress_health_check=[HealthCheck.filter_too_much])  # points off the image or on patch borders
 @given(geom=geometries(), u=st.floats(0.02, 0.98), v=st.floats(0.02, 0.98))
 def test_gaze_point_lands_in_the_patch_holding_that_pixel(geom, u, v):
     """Round trip: a sharp heatmap at (u, v) puts its largest patch mass at geometry.patch_index((u, v))."""
@@ -59,7 +60,7 @@ def test_gaze_point_lands_in_the_patch_holding_that_pixel(geom, u, v):
     gh, gw = geom.grid_hw
     # stay away from patch borders, where a tiny Gaussian straddles two patches
     fu, fv = (p[0] * gw) % 1, (p[1] * gh) % 1
-    assume(0.2 < fu < 0.8 and 0.2 < fv < 0.8)
+    assume(0.12 < fu < 0.88 and 0.12 < fv < 0.88)
     # a single hot cell of a fine grid: its extent (< 1 px after any resize here) stays inside the patch
     heat, ok = heatmaps_from_points(torch.tensor([[u, v]]), (2000, 2000), 0.3, truncate=0)
     dist, valid = patch_distribution(heat, geom, ok)
