@@ -128,7 +128,7 @@ def paper() -> ExperimentConfig:
         heldout_per_task=5,
         arms=("baseline", "gaze", "perturbed"),
         train_seeds=(0, 1, 2),
-        train=replace(quick_train(), steps=4000, batch_size=32),
+        train=replace(quick_train(), steps=4000, batch_size=32, device="auto"),  # a GPU when there is one
         parallel=3,
         eval=EvalConfig(episodes=50, max_steps=120, conditions=("clean", "dim:0.7", "gaussian_noise:0.5")),
         convergence_points=4,
@@ -154,6 +154,7 @@ def full() -> ExperimentConfig:
             policy=dataclasses.replace(t.policy, image_hw=(128, 128), patch_size=16),
             optim=OptimConfig(lr=5e-4, warmup_steps=500, min_lr_frac=0.05),
             data=DataConfig(),
+            device="auto",
         ),
         parallel=os.cpu_count() or 2,
         eval=EvalConfig(
