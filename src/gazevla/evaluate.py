@@ -47,6 +47,19 @@ log = logging.getLogger(__name__)
 ENVS = {"metaworld": "gazevla.envs.metaworld:MetaWorldEnv", "libero": "gazevla.envs.libero:LiberoEnv"}
 
 
+# The full robustness sweep: each lighting perturbation and several sensor-noise levels.
+ROBUSTNESS_CONDITIONS = (
+    "clean",
+    "dim:0.7",
+    "bright:0.7",
+    "tint:1",
+    "light_direction:1",
+    "gaussian_noise:0.3",
+    "gaussian_noise:0.6",
+    "salt_pepper:0.5",
+)
+
+
 @dataclass(frozen=True)
 class EvalConfig:
     checkpoints: tuple[str, ...] = ()
@@ -408,16 +421,7 @@ def presets() -> dict[str, Any]:
             episodes=50,
             max_steps=200,
             workers=os.cpu_count() or 2,
-            conditions=(
-                "clean",
-                "dim:0.7",
-                "bright:0.7",
-                "tint:1",
-                "light_direction:1",
-                "gaussian_noise:0.3",
-                "gaussian_noise:0.6",
-                "salt_pepper:0.5",
-            ),
+            conditions=ROBUSTNESS_CONDITIONS,
         ),
     }
 

@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from gazevla.envs.render import set_user_mesh
+
 # Model fields robosuite/LIBERO set on the compiled model after compiling (appearance only).
 APPEARANCE_FIELDS = ("site_rgba", "site_size", "geom_rgba", "mat_rgba")
 
@@ -51,14 +53,6 @@ def decimate_with_texcoords(
     remap[used] = np.arange(used.size)
     ft = None if facetex is None else np.asarray(facetex, dtype=np.int64)[keep]
     return merged[used], remap[f], ft, keep
-
-
-def _quat_to_mat(quat: np.ndarray) -> np.ndarray:
-    import mujoco
-
-    mat = np.zeros(9)
-    mujoco.mju_quat2Mat(mat, np.asarray(quat, dtype=np.float64))
-    return mat.reshape(3, 3)
 
 
 def build_libero_visual_model(
@@ -91,16 +85,9 @@ def build_libero_visual_model(
         vert, face, ft, _ = decimate_with_texcoords(v, m.mesh_face[fa : fa + fn], facetex, cell)
         if len(face) < 4:
             continue
-        # Compiled vertices live in the mesh's inertial frame; move them back to the file's frame so that the
-        # compiler re-derives the geom's placement as it did for the original mesh.
-        vert = vert @ _quat_to_mat(m.mesh_quat[mid]).T + m.mesh_pos[mid]
-        sm.file = ""
-        sm.scale = [1.0, 1.0, 1.0]
-        sm.uservert = vert.reshape(-1).tolist()
-        sm.userface = face.reshape(-1).tolist()
-        sm.usernormal = []  # recomputed by the compiler (the compiled ones did not carry over: measured worse)
-        sm.usertexcoord = m.mesh_texcoord[ta : ta + tn].reshape(-1).tolist() if ft is not None else []
-        sm.userfacetexcoord = ft.reshape(-1).tolist() if ft is not None else []
+        # Normals are recomputed by the compiler (the compiled ones did not carry over: measured worse).
+        texcoord = m.mesh_texcoord[ta : ta + tn] if ft is not None else None
+        set_user_mesh(sm, m, mid, vert, face, texcoord, ft)
     visual = spec.compile()
     for attr in ("nbody", "njnt", "nq", "ngeom", "nsite", "ncam", "nlight", "nmat", "ntex"):
         if getattr(visual, attr) != getattr(m, attr):

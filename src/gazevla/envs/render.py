@@ -242,6 +242,30 @@ def _quat_to_mat(quat: np.ndarray) -> np.ndarray:
     return mat.reshape(3, 3)
 
 
+def set_user_mesh(
+    spec_mesh: Any,
+    model: Any,
+    mesh_id: int,
+    vert: np.ndarray,
+    face: np.ndarray,
+    texcoord: np.ndarray | None = None,
+    facetexcoord: np.ndarray | None = None,
+) -> None:
+    """Replace a spec mesh's file with explicit geometry: `vert` (V, 3) in the compiled mesh's frame, `face`
+    (F, 3), optional texture coordinates (T, 2) and per-face texcoord indices (F, 3). Normals are left to the
+    compiler."""
+    # Compiled vertices live in the mesh's inertial frame; move them back to the file's frame so that the
+    # compiler re-derives the geom's placement exactly as it did for the original mesh.
+    vert = vert @ _quat_to_mat(model.mesh_quat[mesh_id]).T + model.mesh_pos[mesh_id]
+    spec_mesh.file = ""
+    spec_mesh.scale = [1.0, 1.0, 1.0]
+    spec_mesh.uservert = vert.reshape(-1).tolist()
+    spec_mesh.userface = face.reshape(-1).tolist()
+    spec_mesh.usernormal = []
+    spec_mesh.usertexcoord = [] if texcoord is None else texcoord.reshape(-1).tolist()
+    spec_mesh.userfacetexcoord = [] if facetexcoord is None else facetexcoord.reshape(-1).tolist()
+
+
 def build_visual_model(
     xml_path: str | Path, physics_model: Any, mesh_cell: float | None = 0.01, min_faces: int = 500
 ) -> Any:
@@ -266,16 +290,7 @@ def build_visual_model(
             vert, face = decimate_mesh(m.mesh_vert[va : va + vn], m.mesh_face[fa : fa + fn], mesh_cell)
             if len(face) < 4:
                 continue
-            # Compiled vertices live in the mesh's inertial frame; move them back to the file's frame so that
-            # the compiler re-derives the geom's placement exactly as it did for the original mesh.
-            vert = vert @ _quat_to_mat(m.mesh_quat[mid]).T + m.mesh_pos[mid]
-            sm.file = ""
-            sm.scale = [1.0, 1.0, 1.0]
-            sm.uservert = vert.reshape(-1).tolist()
-            sm.userface = face.reshape(-1).tolist()
-            sm.usernormal = []
-            sm.usertexcoord = []
-            sm.userfacetexcoord = []
+            set_user_mesh(sm, m, mid, vert, face)
     visual = spec.compile()
     for attr in ("nbody", "njnt", "nq", "ngeom", "nsite", "ncam", "nlight", "nmocap"):
         if getattr(visual, attr) != getattr(physics_model, attr):

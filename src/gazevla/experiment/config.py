@@ -7,7 +7,7 @@ import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from gazevla.evaluate import EvalConfig
+from gazevla.evaluate import ROBUSTNESS_CONDITIONS, EvalConfig
 from gazevla.gaze.aggregation import AggregationConfig
 from gazevla.train import DataConfig, GazeConfig, OptimConfig, TrainConfig
 from gazevla.train import quick as quick_train
@@ -138,7 +138,7 @@ def paper() -> ExperimentConfig:
 
 def full() -> ExperimentConfig:
     """The wider study for a many-core machine with a GPU: 5 tasks at 128 px, every gaze-source ablation arm,
-    3 seeds x 20,000 steps, 7 lighting and noise conditions, 50 episodes per task and condition."""
+    3 seeds x 20,000 steps, the full lighting and noise sweep (evaluate.ROBUSTNESS_CONDITIONS), 50 episodes per task and condition."""
     t = quick_train()
     return ExperimentConfig(
         out=Path("runs/full"),
@@ -161,15 +161,7 @@ def full() -> ExperimentConfig:
             episodes=50,
             max_steps=200,
             workers=os.cpu_count() or 2,
-            conditions=(
-                "clean",
-                "dim:0.7",
-                "bright:0.7",
-                "tint:1",
-                "gaussian_noise:0.3",
-                "gaussian_noise:0.6",
-                "salt_pepper:0.5",
-            ),
+            conditions=ROBUSTNESS_CONDITIONS,
         ),
         convergence_points=8,
         convergence_episodes=20,
