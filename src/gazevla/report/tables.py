@@ -11,6 +11,7 @@ import math
 import platform
 import statistics
 from collections import defaultdict
+from collections.abc import Callable, Iterator
 from typing import Any
 
 from gazevla.stats import fisher_exact, mcnemar_exact, paired_mean_difference, steps_to_threshold, wilson
@@ -52,32 +53,41 @@ def per_seed_table(records: list[dict[str, Any]]) -> dict[str, dict[str, list[in
     return dict(sorted(out.items()))
 
 
+def paired_by_setup(
+    records: list[dict[str, Any]], value: Callable[[dict[str, Any]], Any], reference: str
+) -> Iterator[tuple[str, str, list[Any], list[Any]]]:
+    """For each arm but `reference` and each condition both have: (name "arm vs reference | condition", arm,
+    the arm's values, the reference's values) on the episodes they share, paired by (training seed, task,
+    setup seed). `value(record)` is what is compared; records where it is None are left out."""
+    by: dict[tuple[str, str], dict[tuple[str, str, int], Any]] = defaultdict(dict)
+    for r in records:
+        v = value(r)
+        if v is not None:
+            arm, _, seed = r["arm"].partition("@")
+            by[(arm, r["condition"])][(seed, r["task"], r["seed"])] = v
+    for arm in sorted({a for a, _ in by} - {reference}):
+        for (a, cond), xs in by.items():
+            ref = by.get((reference, cond))
+            if a != arm or not ref:
+                continue
+            common = sorted(set(xs) & set(ref))
+            if common:
+                yield f"{arm} vs {reference} | {cond}", arm, [xs[k] for k in common], [ref[k] for k in common]
+
+
 def paired_tests(records: list[dict[str, Any]], reference: str = "baseline") -> dict[str, dict[str, Any]]:
     """Each arm against `reference` per condition: exact McNemar on episodes paired by (training seed, task,
     setup seed), and Fisher's exact test on the pooled counts."""
-    key = defaultdict(dict)
-    for r in records:
-        arm, _, seed = r["arm"].partition("@")
-        key[(arm, r["condition"])][(seed, r["task"], r["seed"])] = bool(r["success"])
     out = {}
-    arms = sorted({a for a, _ in key} - {reference})
-    for arm in arms:
-        for (a, cond), outcomes in key.items():
-            if a != arm or (reference, cond) not in key:
-                continue
-            ref = key[(reference, cond)]
-            common = sorted(set(outcomes) & set(ref))
-            if not common:
-                continue
-            x, y = [outcomes[k] for k in common], [ref[k] for k in common]
-            m = mcnemar_exact(x, y)
-            out[f"{arm} vs {reference} | {cond}"] = {
-                "pairs": len(common),
-                f"{arm}_only": m["a_only"],
-                f"{reference}_only": m["b_only"],
-                "mcnemar_p": m["p_value"],
-                "fisher_p": fisher_exact(sum(x), len(x), sum(y), len(y)),
-            }
+    for name, arm, x, y in paired_by_setup(records, lambda r: bool(r["success"]), reference):
+        m = mcnemar_exact(x, y)
+        out[name] = {
+            "pairs": len(x),
+            f"{arm}_only": m["a_only"],
+            f"{reference}_only": m["b_only"],
+            "mcnemar_p": m["p_value"],
+            "fisher_p": fisher_exact(sum(x), len(x), sum(y), len(y)),
+        }
     return out
 
 
@@ -101,22 +111,8 @@ def paired_distance_tests(
 ) -> dict[str, dict[str, Any]]:
     """Each arm against `reference` per condition on a per-episode distance, paired by (training seed, task,
     setup seed): mean difference (negative: closer than the reference), 95% interval, permutation p."""
-    by: dict[tuple[str, str], dict[tuple[str, str, int], float]] = defaultdict(dict)
-    for r in records:
-        if key in r:
-            arm, _, seed = r["arm"].partition("@")
-            by[(arm, r["condition"])][(seed, r["task"], r["seed"])] = float(r[key])
-    out = {}
-    for (arm, cond), xs in sorted(by.items()):
-        ref = by.get((reference, cond))
-        if arm == reference or not ref:
-            continue
-        common = sorted(set(xs) & set(ref))
-        if common:
-            out[f"{arm} vs {reference} | {cond}"] = paired_mean_difference(
-                [xs[k] for k in common], [ref[k] for k in common]
-            )
-    return out
+    pairs = paired_by_setup(records, lambda r: float(r[key]) if key in r else None, reference)
+    return {name: paired_mean_difference(x, y) for name, _, x, y in pairs}
 
 
 def convergence(curves: dict[str, dict[int, tuple[int, int]]], threshold: float) -> dict[str, Any]:
