@@ -309,6 +309,13 @@ class Experiment:
         plot_attention(panels, columns, path)
         return str(path.relative_to(self.out))
 
+    def results_date(self) -> str:
+        """When the results were produced: the last stage before the report finished (a rerun that only
+        rewrites the report keeps that date)."""
+        times = [self.marker(s).stat().st_mtime for s in STAGES[:-1] if self.marker(s).exists()]
+        when = datetime.fromtimestamp(max(times), timezone.utc) if times else datetime.now(timezone.utc)
+        return when.strftime("%Y-%m-%d %H:%M UTC")
+
     def stage_report(self, results: dict[str, Any]) -> dict[str, Any]:
         from gazevla.report import (
             convergence,
@@ -365,7 +372,7 @@ class Experiment:
         demos = results["demos"]["train"]
         report = {
             "preset": self.preset,
-            "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+            "date": self.results_date(),
             "machine": machine_summary(),
             "wall_time_s": sum(self.times.values()),
             "stage_times_s": dict(self.times),
