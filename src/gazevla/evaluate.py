@@ -242,9 +242,11 @@ def fingerprint(checkpoint: str) -> str:
 
 
 def job_key(job: Job, max_steps: int, env: str, prints: dict[str, str]) -> str:
-    """What makes two rollouts the same: a logged record is reused only for an identical job."""
-    ckpt = prints.setdefault(job.checkpoint, fingerprint(job.checkpoint))
-    return json.dumps([job.arm, job.checkpoint, ckpt, job.task, job.condition, job.seed, max_steps, env])
+    """What makes two rollouts the same: a logged record is reused only for an identical job.
+    `prints`: each checkpoint's `fingerprint`."""
+    return json.dumps(
+        [job.arm, job.checkpoint, prints[job.checkpoint], job.task, job.condition, job.seed, max_steps, env]
+    )
 
 
 def read_log(path: Path) -> dict[str, dict[str, Any]]:
@@ -275,11 +277,11 @@ def run_jobs(
 
     With `log_path`, every finished rollout is appended to that JSON-lines log and rollouts already in it
     are not run again, so a killed evaluation resumes where it stopped. Records come back in job order."""
-    prints: dict[str, str] = {}
+    prints = {c: fingerprint(c) for c in {j.checkpoint for j in jobs}}
     keys = [job_key(j, max_steps, env, prints) for j in jobs]
     done = read_log(log_path) if log_path is not None else {}
     todo = [i for i, k in enumerate(keys) if k not in done]
-    if done and todo != list(range(len(jobs))):
+    if len(todo) < len(jobs):
         log.info("resuming evaluation: %d of %d rollouts already logged", len(jobs) - len(todo), len(jobs))
     results: dict[int, dict[str, Any]] = {i: done[k] for i, k in enumerate(keys) if k in done}
     sink = None
