@@ -291,7 +291,6 @@ def rollout_libero_expert(
 
     Returns the Episode (also when it failed: meta["success"] says) and the summary `gazevla collect` logs.
     The episode's task is LIBERO's task name (as `gazevla import hdf5` names LIBERO's demonstrations)."""
-    from gazevla.data.store import Episode
     from gazevla.envs.libero import ACTION_LAYOUT, STATE_LAYOUT
     from gazevla.envs.rollout import noise_seed, record_rollout, summary_of, versions
 
@@ -325,16 +324,7 @@ def rollout_libero_expert(
         "action_layout": list(ACTION_LAYOUT),
         "versions": versions(("hf-libero", "robosuite", "mujoco", "gazevla")),
     }
-    ep = Episode(
-        task=env.task_names[t],
-        instruction=env.instruction,
-        frames=rec.frames,
-        state=rec.state,
-        action=rec.action,
-        extras=rec.extras,
-        meta=meta,
-    )
-    return ep, summary_of(env.task, seed, rec)
+    return rec.episode(env.task_names[t], env.instruction, meta), summary_of(env.task, seed, rec)
 
 
 class LiberoCollector:

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from gazevla.envs.render import set_user_mesh
+from gazevla.envs.render import cluster_vertices, drop_unused, nondegenerate, set_user_mesh
 
 # Model fields robosuite/LIBERO set on the compiled model after compiling (appearance only).
 APPEARANCE_FIELDS = ("site_rgba", "site_size", "geom_rgba", "mat_rgba")
@@ -37,22 +37,14 @@ def decimate_with_texcoords(
     facetex (F', 3) int64 or None, kept (F',) int64 (the original face of each surviving one): vertices in
     one grid cube merge (their mean), faces that collapse are dropped, and of faces that become identical the
     first is kept (with its own texture coordinates)."""
-    q = np.floor(np.asarray(vert) / cell).astype(np.int64)
-    _, inv, counts = np.unique(q, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
-    merged = np.zeros((counts.size, 3))
-    np.add.at(merged, inv, np.asarray(vert, dtype=np.float64))
-    merged /= counts[:, None]
+    merged, inv = cluster_vertices(vert, cell)
     f = inv[np.asarray(face)]
-    keep = np.flatnonzero((f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2]))
+    keep = np.flatnonzero(nondegenerate(f))
     _, first = np.unique(np.sort(f[keep], axis=1), axis=0, return_index=True)
     keep = keep[np.sort(first)]
-    f = f[keep]
-    used = np.unique(f)
-    remap = np.full(len(merged), -1, dtype=np.int64)
-    remap[used] = np.arange(used.size)
+    vert_out, face_out = drop_unused(merged, f[keep])
     ft = None if facetex is None else np.asarray(facetex, dtype=np.int64)[keep]
-    return merged[used], remap[f], ft, keep
+    return vert_out, face_out, ft, keep
 
 
 def build_libero_visual_model(

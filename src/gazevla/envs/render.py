@@ -214,24 +214,39 @@ class FastRenderer:
 
 
 # ----- the render-only model -------------------------------------------------------------------------------
+def cluster_vertices(vert: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    """Merge the vertices in each cube of side `cell` (metres) into their mean.
+
+    vert (V, 3) -> merged (K, 3) float64, cluster (V,) int64: the merged vertex each input vertex became."""
+    q = np.floor(np.asarray(vert) / cell).astype(np.int64)
+    _, inv, counts = np.unique(q, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    merged = np.zeros((counts.size, 3))
+    np.add.at(merged, inv, np.asarray(vert, dtype=np.float64))
+    return merged / counts[:, None], inv
+
+
+def nondegenerate(face: np.ndarray) -> np.ndarray:
+    """face (F, 3) -> bool (F,): the faces whose three vertices are distinct."""
+    return (face[:, 0] != face[:, 1]) & (face[:, 1] != face[:, 2]) & (face[:, 0] != face[:, 2])
+
+
+def drop_unused(vert: np.ndarray, face: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Keep only the vertices `face` uses: (V, 3), (F, 3) -> (V', 3), (F, 3) re-indexed."""
+    used = np.unique(face)
+    remap = np.full(len(vert), -1, dtype=np.int64)
+    remap[used] = np.arange(used.size)
+    return vert[used], remap[face]
+
+
 def decimate_mesh(vert: np.ndarray, face: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
     """Vertex clustering: merge the vertices in each cube of side `cell`, drop degenerate and duplicate faces.
 
     vert (V, 3) float, face (F, 3) int -> (V', 3) float64, (F', 3) int64 with V' <= V, F' <= F.
     """
-    q = np.floor(vert / cell).astype(np.int64)
-    _, inv, counts = np.unique(q, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
-    merged = np.zeros((counts.size, 3))
-    np.add.at(merged, inv, vert.astype(np.float64))
-    merged /= counts[:, None]
+    merged, inv = cluster_vertices(vert, cell)
     f = inv[face]
-    keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
-    f = np.unique(f[keep], axis=0)
-    used = np.unique(f)
-    remap = np.full(len(merged), -1, dtype=np.int64)
-    remap[used] = np.arange(used.size)
-    return merged[used], remap[f]
+    return drop_unused(merged, np.unique(f[nondegenerate(f)], axis=0))
 
 
 def _quat_to_mat(quat: np.ndarray) -> np.ndarray:

@@ -44,6 +44,18 @@ class Recording:
     def length(self) -> int:
         return int(self.action.shape[0])
 
+    def episode(self, task: str, instruction: str, meta: dict[str, Any]) -> Episode:
+        """The episode to store: this recording's frames, state, action and extras with `meta`."""
+        return Episode(
+            task=task,
+            instruction=instruction,
+            frames=self.frames,
+            state=self.state,
+            action=self.action,
+            extras=self.extras,
+            meta=meta,
+        )
+
 
 def noise_seed(task: str, seed: int) -> list[int]:
     """The action-noise seed of (task, setup seed): the same in every process."""
@@ -159,16 +171,7 @@ def rollout_expert(
         "action_layout": list(ACTION_LAYOUT),
         "versions": versions(("metaworld", "mujoco", "gazevla")),
     }
-    ep = Episode(
-        task=task,
-        instruction=env.instruction,
-        frames=rec.frames,
-        state=rec.state,
-        action=rec.action,
-        extras=rec.extras,
-        meta=meta,
-    )
-    return ep, summary_of(task, seed, rec)
+    return rec.episode(task, env.instruction, meta), summary_of(task, seed, rec)
 
 
 class MetaWorldCollector:
