@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from gazevla.envs.render import cluster_vertices, drop_unused, nondegenerate, set_user_mesh
+from gazevla.envs.render import cluster_vertices, drop_unused, large_meshes, nondegenerate, set_user_mesh
 
 # Model fields robosuite/LIBERO set on the compiled model after compiling (appearance only).
 APPEARANCE_FIELDS = ("site_rgba", "site_size", "geom_rgba", "mat_rgba")
@@ -64,17 +64,12 @@ def build_libero_visual_model(
         raise ValueError(f"mesh_cell must be > 0 metres, got {mesh_cell}")
     m = physics_model
     spec = mujoco.MjSpec.from_file(str(xml_path))
-    for sm in spec.meshes:
-        mid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_MESH, sm.name)
-        if mid < 0 or m.mesh_facenum[mid] < min_faces:
-            continue
-        va, vn = m.mesh_vertadr[mid], m.mesh_vertnum[mid]
+    for sm, mid, v, f in large_meshes(spec, m, min_faces):
         fa, fn = m.mesh_faceadr[mid], m.mesh_facenum[mid]
         ta, tn = m.mesh_texcoordadr[mid], m.mesh_texcoordnum[mid]
         facetex = m.mesh_facetexcoord[fa : fa + fn] if tn > 0 else None
-        v = m.mesh_vert[va : va + vn]
         cell = min(mesh_cell, relative_cell * float((v.max(axis=0) - v.min(axis=0)).max()))
-        vert, face, ft, _ = decimate_with_texcoords(v, m.mesh_face[fa : fa + fn], facetex, cell)
+        vert, face, ft, _ = decimate_with_texcoords(v, f, facetex, cell)
         if len(face) < 4:
             continue
         # Normals are recomputed by the compiler (the compiled ones did not carry over: measured worse).

@@ -24,7 +24,7 @@ import ctypes
 import ctypes.util
 import os
 import weakref
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -281,6 +281,20 @@ def set_user_mesh(
     spec_mesh.userfacetexcoord = [] if facetexcoord is None else facetexcoord.reshape(-1).tolist()
 
 
+def large_meshes(spec: Any, model: Any, min_faces: int) -> Iterator[tuple[Any, int, np.ndarray, np.ndarray]]:
+    """The meshes of `spec` that compiled into `model` with >= `min_faces` faces: (spec mesh, mesh id,
+    compiled vertices (V, 3), faces (F, 3))."""
+    import mujoco
+
+    for sm in spec.meshes:
+        mid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_MESH, sm.name)
+        if mid < 0 or model.mesh_facenum[mid] < min_faces:
+            continue
+        va, vn = model.mesh_vertadr[mid], model.mesh_vertnum[mid]
+        fa, fn = model.mesh_faceadr[mid], model.mesh_facenum[mid]
+        yield sm, mid, model.mesh_vert[va : va + vn], model.mesh_face[fa : fa + fn]
+
+
 def build_visual_model(
     xml_path: str | Path, physics_model: Any, mesh_cell: float | None = 0.01, min_faces: int = 500
 ) -> Any:
@@ -295,17 +309,10 @@ def build_visual_model(
     if mesh_cell is not None:
         if mesh_cell <= 0:
             raise ValueError(f"mesh_cell must be > 0 metres or None, got {mesh_cell}")
-        m = physics_model
-        for sm in spec.meshes:
-            mid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_MESH, sm.name)
-            if mid < 0 or m.mesh_facenum[mid] < min_faces:
-                continue
-            va, vn = m.mesh_vertadr[mid], m.mesh_vertnum[mid]
-            fa, fn = m.mesh_faceadr[mid], m.mesh_facenum[mid]
-            vert, face = decimate_mesh(m.mesh_vert[va : va + vn], m.mesh_face[fa : fa + fn], mesh_cell)
-            if len(face) < 4:
-                continue
-            set_user_mesh(sm, m, mid, vert, face)
+        for sm, mid, v, f in large_meshes(spec, physics_model, min_faces):
+            vert, face = decimate_mesh(v, f, mesh_cell)
+            if len(face) >= 4:
+                set_user_mesh(sm, physics_model, mid, vert, face)
     visual = spec.compile()
     for attr in ("nbody", "njnt", "nq", "ngeom", "nsite", "ncam", "nlight", "nmocap"):
         if getattr(visual, attr) != getattr(physics_model, attr):
