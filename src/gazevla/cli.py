@@ -23,6 +23,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "gazevla.experiment:main",
         "the end-to-end pipeline: demos, priors, training, evaluation, report",
     ),
+    "compare": (
+        "gazevla.report.compare:main",
+        "compare two experiment runs on the setups both evaluated (paired tests per arm and condition)",
+    ),
     "glc": ("gazevla.glc.cli:main", "train / evaluate the GLC video gaze estimator"),
     "import": (
         "gazevla.data.importers:main",

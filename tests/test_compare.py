@@ -1,0 +1,74 @@
+import json
+
+import pytest
+
+from gazevla.report.compare import compare_markdown, compare_records, compare_runs, config_diff, main
+
+
+def records(arm, successes, condition="clean", task="reach-v3", start=1000, distance=None):
+    out = []
+    for i, s in enumerate(successes):
+        r = {"arm": arm, "task": task, "condition": condition, "seed": start + i, "success": bool(s)}
+        if distance is not None:
+            r["min_distance"] = distance
+        out.append(r)
+    return out
+
+
+def write_run(root, name, config, episodes, curves=None):
+    run = root / name
+    (run / "eval").mkdir(parents=True)
+    (run / "config.json").write_text(json.dumps(config))
+    (run / "eval" / "eval_info.json").write_text(json.dumps({"episodes": episodes}))
+    if curves is not None:
+        (run / "report.json").write_text(json.dumps({"convergence": {"arms": curves}}))
+    return run
+
+
+def test_config_diff_names_dotted_leaves_and_ignores_out():
+    a = {"out": "runs/a", "train": {"steps": 4000, "optim": {"lr": 1e-3}}, "tasks": ["reach-v3"]}
+    b = {"out": "runs/b", "train": {"steps": 6000, "optim": {"lr": 1e-3}}, "tasks": ["reach-v3"], "new": 1}
+    assert config_diff(a, b) == {"train.steps": [4000, 6000], "new": [None, 1]}
+
+
+def test_compare_pairs_each_arm_by_seed_task_and_setup():
+    a = records("gaze@s0", [0] * 10, distance=0.2) + records("baseline@s0", [1, 0] * 5)
+    b = records("gaze@s0", [1] * 8 + [0] * 2, distance=0.1) + records("baseline@s0", [1, 0] * 5)
+    b += records("gaze@s1", [1] * 10)  # a training seed A never ran: unpaired, left out of the test
+    rows = compare_records(a, b)
+    g = rows["gaze | clean"]
+    assert g["pairs"] == 10 and g["b_only"] == 8 and g["a_only"] == 0 and g["mcnemar_p"] < 0.01
+    assert g["a"]["successes"] == 0 and g["b"]["successes"] == 18  # the success cells pool every seed
+    assert g["distance"]["mean_diff"] == pytest.approx(-0.1)
+    base = rows["baseline | clean"]
+    assert base["a_only"] == base["b_only"] == 0 and base["mcnemar_p"] == 1.0 and base["distance"] is None
+
+
+def test_compare_without_shared_setups_names_both_sides():
+    with pytest.raises(ValueError, match=r"share no evaluated episode.*1000\.\.1004.*2000\.\.2004"):
+        compare_records(records("gaze@s0", [1] * 5), records("gaze@s0", [1] * 5, start=2000))
+
+
+def test_compare_runs_cli_writes_markdown_and_json(tmp_path, capsys):
+    curves = {"gaze": {"steps": [1000, 2000], "rates": [0.25, 0.5], "ci95": [[0, 1], [0, 1]]}}
+    a = write_run(tmp_path, "a", {"out": "a", "train": {"steps": 4000}}, records("gaze@s0", [0, 1, 0, 1]))
+    b = write_run(tmp_path, "b", {"out": "b", "train": {"steps": 6000}}, records("gaze@s0", [1] * 4), curves)
+    result = compare_runs(a, b)
+    assert result["differences"] == {"train.steps": [4000, 6000]}
+    assert result["curves"] == {"a": {}, "b": {"gaze": {"steps": [1000, 2000], "rates": [0.25, 0.5]}}}
+    text = compare_markdown(result)
+    assert "`train.steps` 4000 -> 6000" in text and "| gaze | clean | 2/4 = 0.50" in text
+    assert "- B gaze: 1000: 0.25, 2000: 0.50" in text
+
+    out = tmp_path / "cmp" / "budget.md"
+    assert main([str(a), str(b), "--out", str(out)]) == 0
+    assert out.read_text() == text and json.loads(out.with_suffix(".json").read_text())["rows"]
+    assert "2/4 = 0.50" in capsys.readouterr().out
+
+
+def test_compare_a_run_without_evaluation_says_which_file(tmp_path):
+    run = tmp_path / "unfinished"
+    run.mkdir()
+    (run / "config.json").write_text("{}")
+    with pytest.raises(FileNotFoundError, match=r"eval_info\.json is missing"):
+        compare_runs(run, run)
