@@ -67,6 +67,14 @@ def test_distances_pool_seeds_and_pair_by_setup():
     assert distance_table(records("baseline@s0", [1])) == {}  # no distances recorded: no table
 
 
+def test_distance_interval_uses_the_sample_sd():
+    recs = records("gaze@s0", [0, 0, 0])
+    for r, d in zip(recs, (0.1, 0.2, 0.3)):
+        r["min_distance"] = d
+    lo, hi = distance_table(recs)["gaze"]["clean"]["ci95"]
+    assert (hi - lo) / 2 == pytest.approx(1.959964 * 0.1 / 3**0.5)
+
+
 def test_verdict_cites_the_paired_test():
     recs = records("baseline@s0", [0] * 10) + records("gaze@s0", [1] * 10)
     v = verdict(success_table(recs), paired=paired_tests(recs))

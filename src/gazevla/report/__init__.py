@@ -2,7 +2,14 @@
 (`markdown`). Every number comes from the experiment's own records."""
 
 from gazevla.report.figures import plot_attention, plot_convergence, plot_success
-from gazevla.report.markdown import distance_lines, fmt_cell, markdown, readme_block, update_readme
+from gazevla.report.markdown import (
+    distance_lines,
+    fmt_cell,
+    markdown,
+    readme_block,
+    replace_block,
+    update_readme,
+)
 from gazevla.report.tables import (
     base_arm,
     convergence,
@@ -32,6 +39,7 @@ __all__ = [
     "plot_convergence",
     "plot_success",
     "readme_block",
+    "replace_block",
     "success_table",
     "update_readme",
     "verdict",

@@ -293,23 +293,27 @@ def readme_block(report: dict[str, Any], figure: str) -> str:
     return "\n".join(lines)
 
 
-def update_readme(readme: Path, run_dir: Path, figure_dir: Path, marker: str = "quick-results") -> None:
-    """Replace the README's block between `<!-- {marker}:start -->` and `<!-- {marker}:end -->` with the
-    results of the experiment in `run_dir`, copying its attention figure into `figure_dir`."""
-    import json
-    import shutil
-
+def replace_block(readme: Path, marker: str, block: str) -> None:
+    """Replace the README's text between `<!-- {marker}:start -->` and `<!-- {marker}:end -->` with `block`."""
     from gazevla.utils.io import atomic_write_text
 
-    report = json.loads((run_dir / "report.json").read_text())
-    figure_dir.mkdir(parents=True, exist_ok=True)
-    fig = figure_dir / f"{marker}-attention.png"
-    shutil.copyfile(run_dir / report["figures"]["attention"], fig)
     start, end = f"<!-- {marker}:start -->", f"<!-- {marker}:end -->"
     text = readme.read_text()
     if start not in text or end not in text:
         raise ValueError(f"{readme} has no {start} ... {end} block")
     head, rest = text.split(start, 1)
     _, tail = rest.split(end, 1)
-    block = readme_block(report, str(fig.relative_to(readme.parent)))
     atomic_write_text(readme, f"{head}{start}\n{block}{end}{tail}")
+
+
+def update_readme(readme: Path, run_dir: Path, figure_dir: Path, marker: str = "quick-results") -> None:
+    """Replace the README's block between `<!-- {marker}:start -->` and `<!-- {marker}:end -->` with the
+    results of the experiment in `run_dir`, copying its attention figure into `figure_dir`."""
+    import json
+    import shutil
+
+    report = json.loads((run_dir / "report.json").read_text())
+    figure_dir.mkdir(parents=True, exist_ok=True)
+    fig = figure_dir / f"{marker}-attention.png"
+    shutil.copyfile(run_dir / report["figures"]["attention"], fig)
+    replace_block(readme, marker, readme_block(report, str(fig.relative_to(readme.parent))))

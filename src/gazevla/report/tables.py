@@ -93,14 +93,15 @@ def paired_tests(records: list[dict[str, Any]], reference: str = "baseline") -> 
 
 def distance_table(records: list[dict[str, Any]], key: str = "min_distance") -> dict[str, dict[str, Any]]:
     """{arm: {condition: {mean, ci95, n}}} of a per-episode distance (metres) pooled over training seeds and
-    tasks; empty when the records carry none (a simulator without a progress measure)."""
+    tasks (normal-approximation interval from the sample SD, as `stats.paired_mean_difference`); empty when
+    the records carry none (a simulator without a progress measure)."""
     cells: dict[tuple[str, str], list[float]] = defaultdict(list)
     for r in records:
         if key in r:
             cells[(base_arm(r["arm"]), r["condition"])].append(float(r[key]))
     out: dict[str, dict[str, Any]] = {}
     for (arm, cond), xs in sorted(cells.items()):
-        mean, sd = sum(xs) / len(xs), statistics.pstdev(xs) if len(xs) > 1 else 0.0
+        mean, sd = sum(xs) / len(xs), statistics.stdev(xs) if len(xs) > 1 else 0.0
         half = 1.959964 * sd / math.sqrt(len(xs))
         out.setdefault(arm, {})[cond] = {"mean": mean, "ci95": [mean - half, mean + half], "n": len(xs)}
     return out
