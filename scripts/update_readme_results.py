@@ -23,7 +23,9 @@ if __name__ == "__main__":
     args = ap.parse_args()
     if args.against:
         replace_block(
-            ROOT / "README.md", args.marker, compare_markdown(compare_runs(args.against, args.run_dir))
+            ROOT / "README.md",
+            args.marker,
+            compare_markdown(compare_runs(args.against, args.run_dir), level=3),
         )
     else:
         update_readme(ROOT / "README.md", args.run_dir, ROOT / "docs" / "figures", args.marker)

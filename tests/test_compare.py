@@ -59,6 +59,9 @@ def test_compare_runs_cli_writes_markdown_and_json(tmp_path, capsys):
     text = compare_markdown(result)
     assert "`train.steps` 4000 -> 6000" in text and "| gaze | clean | 2/4 = 0.50" in text
     assert "- B gaze: 1000: 0.25, 2000: 0.50" in text
+    assert text.startswith("## ") and compare_markdown(result, level=3).startswith(
+        f"### {b} (B) against {a} (A)"
+    )
 
     out = tmp_path / "cmp" / "budget.md"
     assert main([str(a), str(b), "--out", str(out)]) == 0

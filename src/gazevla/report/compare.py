@@ -131,11 +131,12 @@ def _pct(cell: dict[str, Any]) -> str:
     return f"{cell['successes']}/{cell['n']} = {cell['rate']:.2f} [{lo:.2f}, {hi:.2f}]"
 
 
-def compare_markdown(result: dict[str, Any]) -> str:
-    """The comparison as a markdown section: what differs, then one row per arm and condition."""
+def compare_markdown(result: dict[str, Any], level: int = 2) -> str:
+    """The comparison as a markdown section (heading `level`): what differs, then one row per arm and
+    condition, then each run's success-versus-steps curve."""
     diffs = result["differences"]
     lines = [
-        f"## {result['b']} (B) against {result['a']} (A)",
+        f"{'#' * level} {result['b']} (B) against {result['a']} (A)",
         "",
         "What differs: "
         + (", ".join(f"`{k}` {v[0]!r} -> {v[1]!r}" for k, v in diffs.items()) if diffs else "nothing"),
