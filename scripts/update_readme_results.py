@@ -25,7 +25,7 @@ if __name__ == "__main__":
         replace_block(
             ROOT / "README.md",
             args.marker,
-            compare_markdown(compare_runs(args.against, args.run_dir), level=3),
+            compare_markdown(compare_runs(args.against, args.run_dir), level=4),
         )
     else:
         update_readme(ROOT / "README.md", args.run_dir, ROOT / "docs" / "figures", args.marker)
