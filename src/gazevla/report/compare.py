@@ -16,8 +16,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from gazevla.report.tables import base_arm, paired_by_setup, success_table
-from gazevla.stats import fisher_exact, mcnemar_exact, paired_mean_difference
+from gazevla.report.tables import base_arm, paired_distance_tests, paired_tests, success_table
 from gazevla.utils.io import atomic_write_json, atomic_write_text
 
 IGNORED = ("out",)
@@ -65,28 +64,21 @@ def compare_records(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> dict[st
     shared_arms = sorted({base_arm(r["arm"]) for r in a} & {base_arm(r["arm"]) for r in b})
     out: dict[str, dict[str, Any]] = {}
     for arm in shared_arms:
+        # Run A and run B as two arms of one experiment: the paired tests of B against reference A.
         records = _relabel(a, arm, "A") + _relabel(b, arm, "B")
         cells = success_table(records)
-        distances = {
-            name.split(" | ", 1)[1]: paired_mean_difference(x, y)
-            for name, _, x, y in paired_by_setup(
-                records, lambda r: float(r["min_distance"]) if "min_distance" in r else None, "A"
-            )
-        }
-        for name, _, x, y in paired_by_setup(records, lambda r: bool(r["success"]), "A"):
+        distances = paired_distance_tests(records, reference="A")
+        for name, test in paired_tests(records, reference="A").items():
             cond = name.split(" | ", 1)[1]
-            m = mcnemar_exact(x, y)
             out[f"{arm} | {cond}"] = {
                 "a": {k: cells["A"][cond][k] for k in ("successes", "n", "rate", "ci95")},
                 "b": {k: cells["B"][cond][k] for k in ("successes", "n", "rate", "ci95")},
-                "pairs": len(x),
-                "a_paired": sum(y),
-                "b_paired": sum(x),
-                "b_only": m["a_only"],
-                "a_only": m["b_only"],
-                "mcnemar_p": m["p_value"],
-                "fisher_p": fisher_exact(sum(x), len(x), sum(y), len(y)),
-                "distance": distances.get(cond),
+                "pairs": test["pairs"],
+                "b_only": test["B_only"],
+                "a_only": test["A_only"],
+                "mcnemar_p": test["mcnemar_p"],
+                "fisher_p": test["fisher_p"],
+                "distance": distances.get(name),
             }
     if not out:
         raise ValueError(
