@@ -41,6 +41,10 @@ def test_smoke_experiment_end_to_end_and_resume(tmp_path, capsys):
         set(report["distance"]["table"]) == arms
         and "gaze vs baseline | clean" in report["distance"]["paired"]
     )
+    # the gaze arm against its own perturbed-gaze control, and no other arm (glc's would be a shuffled GLC prior)
+    for table in (report["paired"], report["distance"]["paired"]):
+        assert "gaze vs perturbed | clean" in table
+        assert not any(k.startswith("glc vs perturbed") for k in table)
     assert (out / "eval" / "episodes.jsonl").read_text().count("\n") == len(eval_info["episodes"])
     markers = {s: (out / "stages" / f"{s}.json").stat().st_mtime_ns for s in STAGES}
     capsys.readouterr()

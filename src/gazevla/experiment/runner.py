@@ -36,6 +36,7 @@ from typing import Any
 from gazevla.config import save_config, to_dict
 from gazevla.evaluate import evaluate
 from gazevla.experiment.config import PRESETS, ExperimentConfig, arm_prior, glc_dir, trains_glc
+from gazevla.report.tables import base_arm
 from gazevla.train import TrainConfig
 from gazevla.utils.io import atomic_write_json, atomic_write_text
 
@@ -336,11 +337,8 @@ class Experiment:
         ev = json.loads(Path(results["eval"]["eval_info"]).read_text())
         success = success_table(ev["episodes"])
         # Each arm against the baseline, and the gaze arm against its own perturbed-gaze control.
-        paired = paired_tests(ev["episodes"])
-        if {"gaze", "perturbed"} <= set(c.arms):
-            paired.update(
-                paired_tests([r for r in ev["episodes"] if not r["arm"].startswith("baseline")], "perturbed")
-            )
+        control = _gaze_and_control(ev["episodes"], c.arms)
+        paired = {**paired_tests(ev["episodes"]), **paired_tests(control, "perturbed")}
         conv_path = results["converge"]["eval_info"]
         conv_records = json.loads(Path(conv_path).read_text())["episodes"] if conv_path else []
         last_seed = c.eval.seed_start + min(c.convergence_episodes, c.eval.episodes)
@@ -398,22 +396,11 @@ class Experiment:
                 "table": distance_table(ev["episodes"]),
                 "paired": {
                     **paired_distance_tests(ev["episodes"]),
-                    **(
-                        paired_distance_tests(
-                            [r for r in ev["episodes"] if r["arm"].split("@")[0] in ("gaze", "perturbed")],
-                            reference="perturbed",
-                        )
-                        if {"gaze", "perturbed"} <= set(c.arms)
-                        else {}
-                    ),
+                    **paired_distance_tests(control, reference="perturbed"),
                 },
             },
             "verdict": verdict(success, paired=paired)
-            + (
-                verdict({a: success[a] for a in ("gaze", "perturbed")}, "perturbed", paired)
-                if {"gaze", "perturbed"} <= set(success)
-                else []
-            ),
+            + (verdict(success_table(control), "perturbed", paired) if control else []),
             "convergence": conv,
             "glc": results["priors"].get("glc"),
             "val_loss": {
@@ -435,6 +422,14 @@ class Experiment:
         atomic_write_json(self.out / "report.json", report)
         atomic_write_text(self.out / "report.md", markdown(report))
         return {"report": str(self.out / "report.md")}
+
+
+def _gaze_and_control(records: list[dict[str, Any]], arms: tuple[str, ...]) -> list[dict[str, Any]]:
+    """The episodes of the gaze arm and its perturbed-gaze control, the report's second reference (every arm
+    is also compared with the baseline); empty when the run lacks either arm."""
+    if not {"gaze", "perturbed"} <= set(arms):
+        return []
+    return [r for r in records if base_arm(r["arm"]) in ("gaze", "perturbed")]
 
 
 def _train_one(cfg: TrainConfig) -> dict[str, Any]:
