@@ -46,6 +46,8 @@ def test_smoke_experiment_end_to_end_and_resume(tmp_path, capsys):
         assert "gaze vs perturbed | clean" in table
         assert not any(k.startswith("glc vs perturbed") for k in table)
     assert (out / "eval" / "episodes.jsonl").read_text().count("\n") == len(eval_info["episodes"])
+    assert not list((out / "stages").glob("*.clock.json"))  # finished stages keep their time in the marker
+    assert report["wall_time_s"] == pytest.approx(sum(report["stage_times_s"].values()))
     markers = {s: (out / "stages" / f"{s}.json").stat().st_mtime_ns for s in STAGES}
     capsys.readouterr()
     assert main(["--preset", "smoke", "--out", str(out)]) == 0  # rerun: finished stages are skipped

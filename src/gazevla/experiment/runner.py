@@ -38,6 +38,7 @@ from gazevla.evaluate import evaluate
 from gazevla.experiment.config import PRESETS, ExperimentConfig, arm_prior, glc_dir, trains_glc
 from gazevla.report.tables import base_arm
 from gazevla.train import TrainConfig
+from gazevla.utils.clock import ResumableClock
 from gazevla.utils.io import atomic_write_json, atomic_write_text
 
 log = logging.getLogger(__name__)
@@ -78,10 +79,12 @@ class Experiment:
                 self.times[stage] = prev.get("seconds", 0.0)
                 continue
             log.info("stage %s ...", stage)
-            t0 = time.perf_counter()
-            res = getattr(self, f"stage_{stage}")(results)
-            self.times[stage] = time.perf_counter() - t0
+            # counts the attempts a kill interrupted too, so a resumed stage reports its whole time
+            with ResumableClock(self.out / "stages" / f"{stage}.clock.json") as clock:
+                res = getattr(self, f"stage_{stage}")(results)
+            self.times[stage] = clock.seconds
             results[stage] = self.finish(stage, res, self.times[stage])
+            clock.clear()
         return results
 
     # ----- stages -------------------------------------------------------------------------------------------
