@@ -2,7 +2,8 @@ import json
 
 import pytest
 
-from gazevla.report.compare import compare_markdown, compare_records, compare_runs, config_diff, main
+from gazevla.config import config_diff
+from gazevla.report.compare import compare_markdown, compare_records, compare_runs, main
 
 
 def records(arm, successes, condition="clean", task="reach-v3", start=1000, distance=None):
@@ -28,7 +29,9 @@ def write_run(root, name, config, episodes, curves=None):
 def test_config_diff_names_dotted_leaves_and_ignores_out():
     a = {"out": "runs/a", "train": {"steps": 4000, "optim": {"lr": 1e-3}}, "tasks": ["reach-v3"]}
     b = {"out": "runs/b", "train": {"steps": 6000, "optim": {"lr": 1e-3}}, "tasks": ["reach-v3"], "new": 1}
-    assert config_diff(a, b) == {"train.steps": [4000, 6000], "new": [None, 1]}
+    assert config_diff(a, b, ignore=("out",)) == {"train.steps": [4000, 6000], "new": [None, 1]}
+    assert config_diff(a, b, ignore=("out", "train.steps")) == {"new": [None, 1]}  # dotted keys too
+    assert config_diff(a, b)["out"] == ["runs/a", "runs/b"]
 
 
 def test_compare_pairs_each_arm_by_seed_task_and_setup():

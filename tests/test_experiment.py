@@ -53,3 +53,8 @@ def test_smoke_experiment_end_to_end_and_resume(tmp_path, capsys):
     assert main(["--preset", "smoke", "--out", str(out)]) == 0  # rerun: finished stages are skipped
     for s in STAGES[:-1]:
         assert (out / "stages" / f"{s}.json").stat().st_mtime_ns == markers[s]
+    # a changed setting would reuse stages made without it: refused, naming the setting
+    capsys.readouterr()
+    assert main(["--preset", "smoke", "--out", str(out), "--train.steps", "13"]) == 2
+    assert "train.steps: 12 -> 13" in capsys.readouterr().err
+    assert main(["--preset", "smoke", "--out", str(out), "--parallel", "1"]) == 0  # how it runs may change

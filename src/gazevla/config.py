@@ -66,3 +66,15 @@ def to_dict(cfg: Any) -> dict[str, Any]:
 
 def save_config(cfg: Any, path: str | Path) -> None:
     atomic_write_text(Path(path), json.dumps(to_dict(cfg), indent=2, sort_keys=True) + "\n")
+
+
+def config_diff(a: Any, b: Any, ignore: Sequence[str] = (), prefix: str = "") -> dict[str, list[Any]]:
+    """{dotted.key: [value in a, value in b]} for every leaf where two saved configs (`to_dict`) differ,
+    leaving out the dotted keys in `ignore`."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        out: dict[str, list[Any]] = {}
+        for k in sorted(set(a) | set(b)):
+            if f"{prefix}{k}" not in ignore:
+                out.update(config_diff(a.get(k), b.get(k), ignore, f"{prefix}{k}."))
+        return out
+    return {} if a == b else {prefix.rstrip("."): [a, b]}

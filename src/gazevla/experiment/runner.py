@@ -33,9 +33,16 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-from gazevla.config import save_config, to_dict
+from gazevla.config import config_diff, save_config, to_dict
 from gazevla.evaluate import evaluate
-from gazevla.experiment.config import PRESETS, ExperimentConfig, arm_prior, glc_dir, trains_glc
+from gazevla.experiment.config import (
+    EXECUTION_KEYS,
+    PRESETS,
+    ExperimentConfig,
+    arm_prior,
+    glc_dir,
+    trains_glc,
+)
 from gazevla.report.tables import base_arm
 from gazevla.train import TrainConfig
 from gazevla.utils.clock import ResumableClock
@@ -67,7 +74,23 @@ class Experiment:
         atomic_write_json(self.marker(stage), {**result, "seconds": seconds})
         return result
 
+    def check_resumable(self) -> None:
+        """Refuse to continue a run folder whose finished stages were made with another configuration: they
+        would be skipped and reported as this configuration's results."""
+        saved = self.out / "config.json"
+        if not saved.exists():
+            return
+        ignore = ("out", *EXECUTION_KEYS)
+        diff = config_diff(json.loads(saved.read_text()), json.loads(json.dumps(to_dict(self.cfg))), ignore)
+        if diff:
+            changes = ", ".join(f"{k}: {a!r} -> {b!r}" for k, (a, b) in diff.items())
+            raise ValueError(
+                f"{self.out} holds a run with another configuration ({changes}); its finished stages would be "
+                "reused. Choose another --out, or delete the folder to start over."
+            )
+
     def run(self) -> dict[str, Any]:
+        self.check_resumable()
         self.out.mkdir(parents=True, exist_ok=True)
         save_config(self.cfg, self.out / "config.json")
         results: dict[str, Any] = {}
@@ -462,7 +485,13 @@ def main(argv: list[str] | None = None) -> int:
     preset, _ = split_preset(args, "quick")
     cfg = parse(PRESETS, args, prog="gazevla experiment", description=__doc__ or "")
     t0 = time.perf_counter()
-    Experiment(cfg, preset).run()
+    experiment = Experiment(cfg, preset)
+    try:
+        experiment.check_resumable()
+    except ValueError as e:
+        print(f"gazevla experiment: {e}", file=sys.stderr)
+        return 2
+    experiment.run()
     print((Path(cfg.out) / "report.md").read_text())
     print(
         f"experiment finished in {(time.perf_counter() - t0) / 60:.1f} min; report: {Path(cfg.out) / 'report.md'}"

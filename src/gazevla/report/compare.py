@@ -16,11 +16,9 @@ import json
 from pathlib import Path
 from typing import Any
 
+from gazevla.config import config_diff
 from gazevla.report.tables import base_arm, paired_distance_tests, paired_tests, success_table
 from gazevla.utils.io import atomic_write_json, atomic_write_text
-
-IGNORED = ("out",)
-"""config keys that differ between any two runs without changing what was measured"""
 
 
 def load_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
@@ -33,18 +31,6 @@ def load_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
                 f"{path} is missing: is {run_dir} an experiment run whose eval stage finished?"
             )
     return json.loads(config.read_text()), json.loads(info.read_text())["episodes"]
-
-
-def config_diff(a: Any, b: Any, prefix: str = "") -> dict[str, list[Any]]:
-    """{dotted.key: [value in a, value in b]} for every leaf where the two configs differ."""
-    if isinstance(a, dict) and isinstance(b, dict):
-        out: dict[str, list[Any]] = {}
-        for k in sorted(set(a) | set(b)):
-            if not prefix and k in IGNORED:
-                continue
-            out.update(config_diff(a.get(k), b.get(k), f"{prefix}{k}."))
-        return out
-    return {} if a == b else {prefix.rstrip("."): [a, b]}
 
 
 def _relabel(records: list[dict[str, Any]], arm: str, label: str) -> list[dict[str, Any]]:
@@ -112,7 +98,7 @@ def compare_runs(run_a: Path, run_b: Path) -> dict[str, Any]:
     return {
         "a": str(run_a),
         "b": str(run_b),
-        "differences": config_diff(cfg_a, cfg_b),
+        "differences": config_diff(cfg_a, cfg_b, ignore=("out",)),
         "rows": compare_records(rec_a, rec_b),
         "curves": {"a": success_curves(run_a), "b": success_curves(run_b)},
     }
