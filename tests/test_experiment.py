@@ -1,6 +1,9 @@
 """The whole pipeline end to end at smoke size (real Meta-World rendering, real training and evaluation)."""
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -48,6 +51,12 @@ def test_smoke_experiment_end_to_end_and_resume(tmp_path, capsys):
     assert (out / "eval" / "episodes.jsonl").read_text().count("\n") == len(eval_info["episodes"])
     assert not list((out / "stages").glob("*.clock.json"))  # finished stages keep their time in the marker
     assert report["wall_time_s"] == pytest.approx(sum(report["stage_times_s"].values()))
+    # the attention-under-perturbation analysis runs on a finished experiment
+    script = Path(__file__).parents[1] / "scripts" / "attention_under_perturbation.py"
+    subprocess.run([sys.executable, str(script), str(out), "--condition", "dim:0.7"], check=True)
+    shift = json.loads((out / "attention-dim_0.7.json").read_text())
+    assert set(shift["runs"]) == {f"{a}@s0" for a in arms}
+    assert 0 < shift["runs"]["gaze@s0"]["perturbed"]["frames"] == shift["runs"]["gaze@s0"]["clean"]["frames"]
     markers = {s: (out / "stages" / f"{s}.json").stat().st_mtime_ns for s in STAGES}
     capsys.readouterr()
     assert main(["--preset", "smoke", "--out", str(out)]) == 0  # rerun: finished stages are skipped

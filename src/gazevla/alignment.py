@@ -99,3 +99,17 @@ def alignment_report(maps: dict[str, Tensor]) -> dict[str, Any]:
             out["object_mass"] = float(mass_in_region(attn[has], region[has]).mean())
             out["object_mass_chance"] = float(region[has].float().mean(-1).mean())
     return out
+
+
+def attention_shift(clean: dict[str, Tensor], perturbed: dict[str, Tensor]) -> dict[str, Any]:
+    """How a perturbation moves a policy's attention: `attention_maps` of the same frames rendered clean and
+    perturbed (same episodes, same actions; frames matched by (episode, t)). Returns each rendering's
+    `alignment_report` and the agreement of the two attention maps (KL(clean || perturbed), CC, SIM)."""
+    if not torch.equal(clean["episode_t"], perturbed["episode_t"]):
+        raise ValueError("attention_shift: the two renderings do not hold the same (episode, t) frames")
+    agree = alignment_metrics(clean["attention"], perturbed["attention"])
+    return {
+        "clean": alignment_report(clean),
+        "perturbed": alignment_report(perturbed),
+        "agreement": {k: agree[k] for k in ("kl", "cc", "sim") if k in agree},
+    }

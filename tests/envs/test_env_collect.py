@@ -196,3 +196,31 @@ def test_parallel_workers_give_the_same_episodes(tmp_path, gl_backend):
         ea, eb = a.read(i), b.read(i)
         np.testing.assert_array_equal(ea.frames["corner2"], eb.frames["corner2"])
         np.testing.assert_array_equal(ea.action, eb.action)
+
+
+@pytest.mark.sim
+def test_perturbed_collection_is_the_same_episode_under_other_light(tmp_path, gl_backend):
+    """dim:0.7 renders the same setups and expert actions as clean, only darker, into a store of its own."""
+    from gazevla.data.store import EpisodeStore
+    from gazevla.envs.collect import fingerprint, resolve
+
+    common = dict(
+        tasks=("reach-v3",), episodes=1, image_size=32, workers=1, progress=False, gl_backend=gl_backend
+    )
+    clean, dim = (
+        CollectConfig(out=tmp_path / "clean", **common),
+        CollectConfig(out=tmp_path / "dim", perturbation="dim:0.7", **common),
+    )
+    assert collect(clean).complete and collect(dim).complete
+    a, b = EpisodeStore(tmp_path / "clean"), EpisodeStore(tmp_path / "dim")
+    assert a.indices() == b.indices()
+    ea, eb = a.read(a.indices()[0]), b.read(b.indices()[0])
+    np.testing.assert_array_equal(ea.action, eb.action)
+    fa, fb = ea.frames["corner2"].astype(float), eb.frames["corner2"].astype(float)
+    assert fb.mean() < 0.95 * fa.mean()
+    assert fingerprint(resolve(clean)) != fingerprint(resolve(dim))
+
+
+def test_bad_perturbation_is_refused_by_name(tmp_path):
+    with pytest.raises(CollectError, match="perturbation='darker:0.5'.*unknown perturbation"):
+        collect(CollectConfig(out=tmp_path, tasks=("reach-v3",), perturbation="darker:0.5", progress=False))

@@ -95,6 +95,9 @@ class CollectConfig:
     (Meta-World 200, LIBERO 220, the LIBERO-Spatial evaluation length)."""
     goal_marker_radius: float = 0.03
     """Radius (m) of the rendered goal sphere (rendering only); 0 keeps Meta-World's own marker."""
+    perturbation: str = ""
+    """Meta-World: render under this perturbation (gazevla.envs.perturbations spec, e.g. dim:0.7): the same
+    setups and expert actions, seen under other light or with sensor noise; empty = clean."""
     workers: int = 0
     """Worker processes; 0 = one per available core."""
     gl_backend: str = ""
@@ -147,6 +150,8 @@ def fingerprint(cfg: CollectConfig) -> str:
     d["cameras"] = list(d["cameras"])
     if cfg.env != "metaworld":  # Meta-World stores made before there was a choice keep their fingerprint
         d["env"] = cfg.env
+    if cfg.perturbation:  # likewise clean stores
+        d["perturbation"] = cfg.perturbation
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -198,6 +203,7 @@ def _worker_init() -> None:
 def _env_for(task: str, cfg: CollectConfig) -> Any:
     """This process's environment for `task` and the render settings of `cfg` (a resolved config)."""
     key = (cfg.env, task, cfg.cameras, cfg.image_size, cfg.max_steps, cfg.goal_marker_radius, cfg.gl_backend)
+    key += (cfg.perturbation,)
     if key not in _WORKER_ENVS:
         if len(_WORKER_ENVS) >= 8:  # a long-lived process (tests, notebooks) does not pile environments up
             oldest = next(iter(_WORKER_ENVS))
@@ -282,6 +288,15 @@ def _validate(cfg: CollectConfig) -> None:
         raise CollectError(f"max_steps must be in [1, {limit}]")
     if cfg.image_size < 8 or not cfg.cameras:
         raise CollectError("need at least one camera and image_size >= 8")
+    if cfg.perturbation:
+        from gazevla.envs.perturbations import parse_perturbation
+
+        if cfg.env != "metaworld":
+            raise CollectError(f"perturbation={cfg.perturbation!r}: only the metaworld simulator renders one")
+        try:
+            parse_perturbation(cfg.perturbation)
+        except (KeyError, ValueError) as e:
+            raise CollectError(f"perturbation={cfg.perturbation!r}: {e}") from None
 
 
 def collect(cfg: CollectConfig) -> CollectReport:

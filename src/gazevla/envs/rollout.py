@@ -203,6 +203,7 @@ class MetaWorldCollector:
 
     def make_env(self, task: str, cfg: Any) -> Any:
         from gazevla.envs.metaworld import MetaWorldEnv
+        from gazevla.envs.perturbations import parse_perturbation
 
         return MetaWorldEnv(
             task,
@@ -211,6 +212,7 @@ class MetaWorldCollector:
             max_steps=cfg.max_steps,
             goal_marker_radius=cfg.goal_marker_radius,
             gl_backend=cfg.gl_backend or None,
+            perturbation=parse_perturbation(cfg.perturbation),
         )
 
     def rollout(
