@@ -2,8 +2,9 @@
 
 Renders the experiment's held-out setups again under `--condition` (the same expert actions, only the light
 or the sensor differs), then for every final checkpoint compares its attention on the clean and the
-perturbed frames: attention mass on the task object (next to chance) for each, and the agreement of the two
-maps. Writes RUN/attention-<condition>.json and .md.
+perturbed frames: attention mass on the task object (next to chance) for each, the agreement of the two
+maps, and the action loss against the expert's actions on each (the same flow noise on both), which shows
+whether what the policy reads changes where it looks does not. Writes RUN/attention-<condition>.json and .md.
 
 python scripts/attention_under_perturbation.py runs/paper8k --condition dim:0.7
 """
@@ -13,7 +14,10 @@ import json
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from gazevla.alignment import attention_maps, attention_shift
+from gazevla.data.dataset import EpisodeDataset
 from gazevla.data.store import EpisodeStore
 from gazevla.envs.collect import CollectConfig, collect
 from gazevla.policies import load_policy
@@ -42,21 +46,38 @@ def render_heldout(run: Path, cfg: dict[str, Any], condition: str) -> Path:
     return out
 
 
+@torch.no_grad()
+def action_loss(policy: Any, store: EpisodeStore, episodes: list[int], batch_size: int = 256) -> float:
+    """The policy's training loss on every frame of `episodes`, with flow noise drawn from a fixed seed (so
+    two stores with the same frames in the same order get the same draws)."""
+    policy.eval()
+    cfg = policy.config
+    ds = EpisodeDataset(store, episodes, cfg.cameras, cfg.chunk, policy.tokenizer)
+    gen, total = torch.Generator().manual_seed(0), 0.0
+    for start in range(0, len(ds), batch_size):
+        idx = range(start, min(len(ds), start + batch_size))
+        loss, _ = policy(ds.__getitems__(idx), generator=gen)
+        total += float(loss) * len(idx)
+    return total / len(ds)
+
+
 def markdown(run: Path, condition: str, rows: dict[str, dict[str, Any]]) -> str:
     lines = [
         f"## Attention under {condition}: {run}",
         "",
         "Same held-out frames rendered clean and perturbed. Object mass: attention on the task object's patches "
-        "(chance: the region's share of patches). Agreement: CC and KL(clean || perturbed) of the two maps.",
+        "(chance: the region's share of patches). Agreement: CC and KL(clean || perturbed) of the two maps. "
+        "Action loss: the policy's loss against the expert's actions on each rendering.",
         "",
-        "| run | object mass clean | object mass perturbed | chance | CC | KL |",
-        "|---|---|---|---|---|---|",
+        "| run | object mass clean | object mass perturbed | chance | CC | KL | action loss clean | perturbed |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for name, r in rows.items():
         c, p, a = r["clean"], r["perturbed"], r["agreement"]
         lines.append(
             f"| {name} | {c.get('object_mass', float('nan')):.3f} | {p.get('object_mass', float('nan')):.3f} | "
-            f"{c.get('object_mass_chance', float('nan')):.3f} | {a['cc']:.3f} | {a['kl']:.3f} |"
+            f"{c.get('object_mass_chance', float('nan')):.3f} | {a['cc']:.3f} | {a['kl']:.3f} | "
+            f"{r['action_loss']['clean']:.4f} | {r['action_loss']['perturbed']:.4f} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -83,7 +104,10 @@ def main() -> None:
         policy = load_policy(ckpt)
         clean, pert = (attention_maps(policy, s, episodes, cfg["camera"], None, layers) for s in stores)
         rows[name] = attention_shift(clean, pert)
-        print(name, rows[name]["agreement"], flush=True)
+        rows[name]["action_loss"] = dict(
+            zip(("clean", "perturbed"), (action_loss(policy, s, episodes) for s in stores))
+        )
+        print(name, rows[name]["agreement"], rows[name]["action_loss"], flush=True)
     stem = f"attention-{args.condition.replace(':', '_').replace('+', '-')}"
     atomic_write_json(run / f"{stem}.json", {"condition": args.condition, "runs": rows})
     text = markdown(run, args.condition, rows)

@@ -57,6 +57,8 @@ def test_smoke_experiment_end_to_end_and_resume(tmp_path, capsys):
     shift = json.loads((out / "attention-dim_0.7.json").read_text())
     assert set(shift["runs"]) == {f"{a}@s0" for a in arms}
     assert 0 < shift["runs"]["gaze@s0"]["perturbed"]["frames"] == shift["runs"]["gaze@s0"]["clean"]["frames"]
+    assert all(v > 0 for v in shift["runs"]["gaze@s0"]["action_loss"].values())
+    assert (out / "attention-dim_0.7.md").read_text().startswith("## Attention under dim:0.7")
     markers = {s: (out / "stages" / f"{s}.json").stat().st_mtime_ns for s in STAGES}
     capsys.readouterr()
     assert main(["--preset", "smoke", "--out", str(out)]) == 0  # rerun: finished stages are skipped
