@@ -10,6 +10,7 @@ python scripts/attention_under_perturbation.py runs/paper8k --condition dim:0.7
 """
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -24,23 +25,21 @@ from gazevla.policies import load_policy
 from gazevla.utils.io import atomic_write_json, atomic_write_text
 
 
-def render_heldout(run: Path, cfg: dict[str, Any], condition: str) -> Path:
-    """The experiment's held-out setups (its demos stage's seeds and settings) rendered under `condition`."""
-    out = run / f"heldout-{condition.replace(':', '_').replace('+', '-')}"
-    report = collect(
-        CollectConfig(
-            out=out,
-            tasks=tuple(cfg["tasks"]),
-            cameras=(cfg["camera"],),
-            image_size=cfg["image_size"],
-            episodes=cfg["heldout_per_task"],
-            seed_base=cfg["eval"]["seed_start"] + 500,
-            workers=cfg["collect_workers"],
-            gl_backend=cfg["eval"]["gl_backend"] or "",
-            perturbation=condition,
-            progress=False,
-        )
+def slug(condition: str) -> str:
+    """A perturbation spec as a file-name part: dim:0.7 -> dim_0.7."""
+    return condition.replace(":", "_").replace("+", "-")
+
+
+def render_heldout(run: Path, condition: str) -> Path:
+    """The experiment's held-out store collected again with the settings it was collected with (its
+    collect/config.json: setups, camera, size, steps), rendered under `condition`."""
+    saved = json.loads((run / "heldout" / "collect" / "config.json").read_text())
+    names = {f.name for f in dataclasses.fields(CollectConfig)}
+    clean = CollectConfig(
+        **{k: tuple(v) if isinstance(v, list) else v for k, v in saved.items() if k in names}
     )
+    out = run / f"heldout-{slug(condition)}"
+    report = collect(dataclasses.replace(clean, out=out, perturbation=condition, progress=False))
     if not report.complete:
         raise SystemExit(f"{out}: the expert did not solve every held-out setup under {condition}")
     return out
@@ -94,7 +93,7 @@ def main() -> None:
     ckpts = {
         n: r["checkpoint"] for n, r in json.loads((run / "stages" / "train.json").read_text())["runs"].items()
     }
-    stores = EpisodeStore(run / "heldout"), EpisodeStore(render_heldout(run, cfg, args.condition))
+    stores = EpisodeStore(run / "heldout"), EpisodeStore(render_heldout(run, args.condition))
     episodes = stores[0].indices()
     if stores[1].indices() != episodes:
         raise SystemExit("the perturbed rendering holds other episodes than the clean held-out store")
@@ -108,7 +107,7 @@ def main() -> None:
             zip(("clean", "perturbed"), (action_loss(policy, s, episodes) for s in stores))
         )
         print(name, rows[name]["agreement"], rows[name]["action_loss"], flush=True)
-    stem = f"attention-{args.condition.replace(':', '_').replace('+', '-')}"
+    stem = f"attention-{slug(args.condition)}"
     atomic_write_json(run / f"{stem}.json", {"condition": args.condition, "runs": rows})
     text = markdown(run, args.condition, rows)
     atomic_write_text(run / f"{stem}.md", text)

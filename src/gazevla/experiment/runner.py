@@ -50,6 +50,11 @@ from gazevla.utils.io import atomic_write_json, atomic_write_text
 
 log = logging.getLogger(__name__)
 
+
+class ConfigMismatch(ValueError):
+    """The run folder holds stages made with another configuration (see `Experiment.check_resumable`)."""
+
+
 STAGES = ("demos", "priors", "train", "eval", "converge", "align", "report")
 
 
@@ -84,7 +89,7 @@ class Experiment:
         diff = config_diff(json.loads(saved.read_text()), json.loads(json.dumps(to_dict(self.cfg))), ignore)
         if diff:
             changes = ", ".join(f"{k}: {a!r} -> {b!r}" for k, (a, b) in diff.items())
-            raise ValueError(
+            raise ConfigMismatch(
                 f"{self.out} holds a run with another configuration ({changes}); its finished stages would be "
                 "reused. Choose another --out, or delete the folder to start over."
             )
@@ -485,13 +490,11 @@ def main(argv: list[str] | None = None) -> int:
     preset, _ = split_preset(args, "quick")
     cfg = parse(PRESETS, args, prog="gazevla experiment", description=__doc__ or "")
     t0 = time.perf_counter()
-    experiment = Experiment(cfg, preset)
     try:
-        experiment.check_resumable()
-    except ValueError as e:
+        Experiment(cfg, preset).run()
+    except ConfigMismatch as e:
         print(f"gazevla experiment: {e}", file=sys.stderr)
         return 2
-    experiment.run()
     print((Path(cfg.out) / "report.md").read_text())
     print(
         f"experiment finished in {(time.perf_counter() - t0) / 60:.1f} min; report: {Path(cfg.out) / 'report.md'}"
