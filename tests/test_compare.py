@@ -41,6 +41,7 @@ def test_compare_pairs_each_arm_by_seed_task_and_setup():
     rows = compare_records(a, b)
     g = rows["gaze | clean"]
     assert g["pairs"] == 10 and g["b_only"] == 8 and g["a_only"] == 0 and g["mcnemar_p"] < 0.01
+    assert g["rate_diff"] == pytest.approx(0.8) and 0.3 < g["rate_ci95"][0] < 0.8 < g["rate_ci95"][1]
     assert g["a"]["successes"] == 0 and g["b"]["successes"] == 18  # the success cells pool every seed
     assert g["distance"]["mean_diff"] == pytest.approx(-0.1)
     base = rows["baseline | clean"]
@@ -61,6 +62,7 @@ def test_compare_runs_cli_writes_markdown_and_json(tmp_path, capsys):
     assert result["curves"] == {"a": {}, "b": {"gaze": {"steps": [1000, 2000], "rates": [0.25, 0.5]}}}
     text = compare_markdown(result)
     assert "`train.steps` 4000 -> 6000" in text and "| gaze | clean | 2/4 = 0.50" in text
+    assert "| 0 / 2 | +0.50 [" in text  # B solved the 2 setups A missed: the paired difference
     assert "- B gaze: 1000: 0.25, 2000: 0.50" in text
     assert text.startswith("## ") and compare_markdown(result, level=3).startswith(
         f"### {b} (B) against {a} (A)"

@@ -49,6 +49,7 @@ def test_paired_tests_pair_by_seed_and_task():
     p = paired_tests(recs)["gaze vs baseline | clean"]
     assert p["pairs"] == 10 and p["gaze_only"] == 10 and p["baseline_only"] == 0
     assert p["mcnemar_p"] < 0.01
+    assert p["rate_diff"] == 1.0 and 0.5 < p["rate_ci95"][0] < 1.0 and p["rate_ci95"][1] == 1.0
     v = verdict(success_table(recs))
     assert "do not overlap" in v[0] and "better" in v[0]
     v = verdict(success_table(records("baseline@s0", [1, 0]) + records("gaze@s0", [0, 1])))

@@ -1,6 +1,14 @@
+import numpy as np
 import pytest
 
-from gazevla.stats import binom_two_sided, fisher_exact, mcnemar_exact, steps_to_threshold, wilson
+from gazevla.stats import (
+    binom_two_sided,
+    fisher_exact,
+    mcnemar_exact,
+    paired_rate_difference,
+    steps_to_threshold,
+    wilson,
+)
 
 
 def test_wilson_known_values():
@@ -42,3 +50,44 @@ def test_paired_mean_difference():
         paired_mean_difference([1.0], [1.0, 2.0])
     with pytest.raises(ValueError, match="finite"):
         paired_mean_difference([float("nan")], [1.0])
+
+
+def pairs(both, a_only, b_only, neither):
+    a = [1] * both + [1] * a_only + [0] * b_only + [0] * neither
+    b = [1] * both + [0] * a_only + [1] * b_only + [0] * neither
+    return a, b
+
+
+def test_paired_rate_difference_is_the_rate_gap_with_an_interval_around_it():
+    r = paired_rate_difference(*pairs(40, 20, 5, 35))
+    assert r["n"] == 100 and r["diff"] == pytest.approx(0.15)
+    lo, hi = r["ci95"]
+    assert 0.0 < lo < 0.15 < hi < 0.3  # 20 vs 5 discordant: clearly positive
+    # Large n: close to the Wald interval for paired proportions, sqrt(f + g - (f - g)^2 / n) / n.
+    big = paired_rate_difference(*pairs(400, 200, 50, 350))
+    half = 1.959964 * np.sqrt(250 - 150**2 / 1000) / 1000
+    assert big["ci95"] == pytest.approx([0.15 - half, 0.15 + half], abs=0.005)
+    # Same discordant counts either way: a mirrored interval.
+    assert paired_rate_difference(*pairs(40, 5, 20, 35))["ci95"] == pytest.approx([-hi, -lo])
+    # No discordant pair: zero difference, and an interval that still admits small differences.
+    none = paired_rate_difference(*pairs(30, 0, 0, 20))
+    assert none["diff"] == 0.0 and none["ci95"][0] < 0 < none["ci95"][1]
+    # At the boundary the interval stays inside [-1, 1].
+    top = paired_rate_difference(*pairs(0, 10, 0, 0))
+    assert top["diff"] == 1.0 and 0.5 < top["ci95"][0] < 1.0 and top["ci95"][1] == 1.0
+    with pytest.raises(ValueError, match="equal length"):
+        paired_rate_difference([1], [1, 0])
+    with pytest.raises(ValueError, match="no pairs"):
+        paired_rate_difference([], [])
+
+
+def test_paired_rate_difference_covers_the_true_difference_about_95_percent_of_the_time():
+    # Pairs drawn from a known joint law: both 0.30, a only 0.15, b only 0.05, neither 0.50 (true diff 0.10).
+    rng = np.random.default_rng(0)
+    cells = rng.choice(4, p=[0.30, 0.15, 0.05, 0.50], size=(2000, 60))
+    hits = 0
+    for row in cells:
+        counts = np.bincount(row, minlength=4)
+        lo, hi = paired_rate_difference(*pairs(*counts.tolist()))["ci95"]
+        hits += lo <= 0.10 <= hi
+    assert 0.93 <= hits / len(cells) <= 0.975

@@ -2,13 +2,15 @@
 
 Evaluation arms share their episode seeds, so two policies' outcomes on the same seeds form pairs; the
 paired exact test (McNemar's, a binomial test on the discordant pairs) uses that. Fisher's exact test
-compares two success counts without pairing.
+compares two success counts without pairing; `paired_rate_difference` says how large a paired difference in
+success rate is, with an interval.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 
 def wilson(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
@@ -41,6 +43,31 @@ def mcnemar_exact(a: Sequence[bool], b: Sequence[bool]) -> dict[str, float]:
     a_only = sum(1 for x, y in zip(a, b) if x and not y)
     b_only = sum(1 for x, y in zip(a, b) if y and not x)
     return {"a_only": a_only, "b_only": b_only, "p_value": binom_two_sided(a_only, a_only + b_only)}
+
+
+def paired_rate_difference(a: Sequence[bool], b: Sequence[bool], z: float = 1.959964) -> dict[str, Any]:
+    """Difference of two success rates on the same seeds, rate(a) - rate(b), with Newcombe's (1998, method 10)
+    95% interval for paired proportions: the two Wilson intervals combined with the pairs' phi correlation.
+    Unlike a Wald interval it stays inside [-1, 1] and keeps its coverage near 0 or 1 and with few pairs.
+
+    Returns {"n": pairs, "diff": rate(a) - rate(b), "ci95": [low, high]}."""
+    if len(a) != len(b):
+        raise ValueError(f"paired outcomes must have equal length, got {len(a)} and {len(b)}")
+    n = len(a)
+    if n == 0:
+        raise ValueError("no pairs to compare")
+    both = sum(1 for x, y in zip(a, b) if x and y)
+    a_only = sum(1 for x, y in zip(a, b) if x and not y)
+    b_only = sum(1 for x, y in zip(a, b) if y and not x)
+    neither = n - both - a_only - b_only
+    pa, pb = (both + a_only) / n, (both + b_only) / n
+    (la, ua), (lb, ub) = wilson(both + a_only, n, z), wilson(both + b_only, n, z)
+    margins = (both + a_only) * (b_only + neither) * (both + b_only) * (a_only + neither)
+    phi = (both * neither - a_only * b_only) / math.sqrt(margins) if margins else 0.0
+    diff = pa - pb
+    down = math.sqrt(max(0.0, (pa - la) ** 2 - 2 * phi * (pa - la) * (ub - pb) + (ub - pb) ** 2))
+    up = math.sqrt(max(0.0, (ua - pa) ** 2 - 2 * phi * (ua - pa) * (pb - lb) + (pb - lb) ** 2))
+    return {"n": n, "diff": diff, "ci95": [max(-1.0, diff - down), min(1.0, diff + up)]}
 
 
 def fisher_exact(k1: int, n1: int, k2: int, n2: int) -> float:

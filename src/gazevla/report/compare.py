@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from gazevla.config import config_diff
+from gazevla.report.markdown import rate_difference
 from gazevla.report.tables import base_arm, paired_distance_tests, paired_tests, success_table
 from gazevla.utils.io import atomic_write_json, atomic_write_text
 
@@ -44,9 +45,10 @@ def _relabel(records: list[dict[str, Any]], arm: str, label: str) -> list[dict[s
 
 
 def compare_records(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
-    """{"arm | condition": {a, b (success cells), pairs, b_only, a_only, mcnemar_p, fisher_p, distance}} for
-    every arm and condition both runs evaluated. `a_only`/`b_only` count the paired setups only that run
-    solved; `distance` is the paired closest-approach difference B - A (negative: B came closer), or None."""
+    """{"arm | condition": {a, b (success cells), pairs, b_only, a_only, rate_diff, rate_ci95, mcnemar_p, fisher_p,
+    distance}} for every arm and condition both runs evaluated. `a_only`/`b_only` count the paired setups only
+    that run solved; `rate_diff` is B's success rate minus A's on the paired setups, `rate_ci95` its 95%
+    interval; `distance` is the paired closest-approach difference B - A (negative: B came closer), or None."""
     shared_arms = sorted({base_arm(r["arm"]) for r in a} & {base_arm(r["arm"]) for r in b})
     out: dict[str, dict[str, Any]] = {}
     for arm in shared_arms:
@@ -62,6 +64,8 @@ def compare_records(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> dict[st
                 "pairs": test["pairs"],
                 "b_only": test["B_only"],
                 "a_only": test["A_only"],
+                "rate_diff": test["rate_diff"],
+                "rate_ci95": test["rate_ci95"],
                 "mcnemar_p": test["mcnemar_p"],
                 "fisher_p": test["fisher_p"],
                 "distance": distances.get(name),
@@ -120,8 +124,8 @@ def compare_markdown(result: dict[str, Any], level: int = 2) -> str:
         + (", ".join(f"`{k}` {v[0]!r} -> {v[1]!r}" for k, v in diffs.items()) if diffs else "nothing"),
         "",
         "| arm | condition | A success [95% CI] | B success [95% CI] | paired setups | only A / only B "
-        "| McNemar p | closest approach B - A (m) [95% CI] |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| success B - A [95% CI] | McNemar p | closest approach B - A (m) [95% CI] |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for name, row in result["rows"].items():
         arm, cond = name.split(" | ", 1)
@@ -129,7 +133,7 @@ def compare_markdown(result: dict[str, Any], level: int = 2) -> str:
         dist = f"{d['mean_diff']:+.3f} [{d['ci95'][0]:+.3f}, {d['ci95'][1]:+.3f}]" if d else "n/a"
         lines.append(
             f"| {arm} | {cond} | {_pct(row['a'])} | {_pct(row['b'])} | {row['pairs']} "
-            f"| {row['a_only']} / {row['b_only']} | {row['mcnemar_p']:.3g} | {dist} |"
+            f"| {row['a_only']} / {row['b_only']} | {rate_difference(row)} | {row['mcnemar_p']:.3g} | {dist} |"
         )
     curves = result.get("curves", {})
     if any(curves.values()):

@@ -52,23 +52,34 @@ def per_seed_lines(report: dict[str, Any]) -> list[str]:
     return lines
 
 
+def rate_difference(test: dict[str, Any]) -> str:
+    """A paired test's success-rate difference and its 95% interval, e.g. `+0.12 [+0.05, +0.19]`; `n/a` for
+    reports written before it was computed."""
+    if "rate_diff" not in test:
+        return "n/a"
+    lo, hi = test["rate_ci95"]
+    return f"{test['rate_diff']:+.2f} [{lo:+.2f}, {hi:+.2f}]"
+
+
 def paired_lines(report: dict[str, Any]) -> list[str]:
-    """Each arm against the baseline on the same setups: exact McNemar and Fisher p-values."""
+    """Each arm against the baseline on the same setups: the paired success difference with its interval,
+    exact McNemar and Fisher p-values."""
     if not report.get("paired"):
         return []
     lines = [
         "",
         "## Paired comparisons (same setups; exact McNemar on discordant episodes, Fisher on counts)",
         "",
-        "| comparison (A vs B) | condition | pairs | only A solved | only B solved | McNemar p | Fisher p |",
-        "|---|---|---|---|---|---|---|",
+        "| comparison (A vs B) | condition | pairs | only A solved | only B solved | success A - B [95% CI] "
+        "| McNemar p | Fisher p |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for k, v in report["paired"].items():
         comparison, condition = k.split(" | ", 1)
         a, b = comparison.split(" vs ", 1)
         lines.append(
             f"| {comparison} | {condition} | {v['pairs']} | {v[f'{a}_only']} | {v[f'{b}_only']} | "
-            f"{v['mcnemar_p']:.3f} | {v['fisher_p']:.3f} |"
+            f"{rate_difference(v)} | {v['mcnemar_p']:.3f} | {v['fisher_p']:.3f} |"
         )
     return lines
 

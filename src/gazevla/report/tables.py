@@ -14,7 +14,14 @@ from collections import defaultdict
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from gazevla.stats import fisher_exact, mcnemar_exact, paired_mean_difference, steps_to_threshold, wilson
+from gazevla.stats import (
+    fisher_exact,
+    mcnemar_exact,
+    paired_mean_difference,
+    paired_rate_difference,
+    steps_to_threshold,
+    wilson,
+)
 
 
 def base_arm(name: str) -> str:
@@ -77,7 +84,8 @@ def paired_by_setup(
 
 def paired_tests(records: list[dict[str, Any]], reference: str = "baseline") -> dict[str, dict[str, Any]]:
     """Each arm against `reference` per condition: exact McNemar on episodes paired by (training seed, task,
-    setup seed), and Fisher's exact test on the pooled counts."""
+    setup seed), Fisher's exact test on the pooled counts, and the paired success-rate difference (arm minus
+    reference) with its 95% interval (`stats.paired_rate_difference`)."""
     out = {}
     for name, arm, x, y in paired_by_setup(records, lambda r: bool(r["success"]), reference):
         m = mcnemar_exact(x, y)
@@ -87,6 +95,7 @@ def paired_tests(records: list[dict[str, Any]], reference: str = "baseline") -> 
             f"{reference}_only": m["b_only"],
             "mcnemar_p": m["p_value"],
             "fisher_p": fisher_exact(sum(x), len(x), sum(y), len(y)),
+            **{f"rate_{k}": v for k, v in paired_rate_difference(x, y).items() if k != "n"},
         }
     return out
 
