@@ -69,3 +69,17 @@ def test_smoke_experiment_end_to_end_and_resume(tmp_path, capsys):
     assert main(["--preset", "smoke", "--out", str(out), "--train.steps", "13"]) == 2
     assert "train.steps: 12 -> 13" in capsys.readouterr().err
     assert main(["--preset", "smoke", "--out", str(out), "--parallel", "1"]) == 0  # how it runs may change
+
+
+def test_every_experiment_makes_the_gaze_prior_that_alignment_measures_against(tmp_path):
+    from dataclasses import replace
+
+    from gazevla.experiment import Experiment
+    from gazevla.experiment.config import smoke
+
+    def needed(*arms):
+        return [name for name, _, _ in Experiment(replace(smoke(), arms=arms, out=tmp_path)).priors_needed()]
+
+    assert needed("baseline") == ["visuomotor"]  # nothing to train on, but the align stage reads it
+    assert needed("baseline", "gaze", "perturbed") == ["visuomotor", "visuomotor-shuffled"]
+    assert needed("baseline", "blobs") == ["visuomotor", "blobs"]

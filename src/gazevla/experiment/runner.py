@@ -150,16 +150,16 @@ class Experiment:
         return out
 
     def priors_needed(self) -> list[tuple[str, str, tuple[str, ...]]]:
-        needed: dict[str, tuple[str, str, tuple[str, ...]]] = {}
+        """(prior name, gaze source, params) of every prior the arms train on, and always the gaze source's
+        own: the perturbed controls are made from it and the align stage measures every arm against it (a
+        baseline-only experiment too)."""
+        base, bsrc, bparams = arm_prior("gaze", self.cfg)
+        assert base is not None and bsrc is not None
+        needed: dict[str, tuple[str, str, tuple[str, ...]]] = {base: (base, bsrc, bparams)}
         for arm in self.cfg.arms:
             name, source, params = arm_prior(arm, self.cfg)
-            if name is None or source is None:
-                continue
-            if source == "perturbed" and "mode=blobs" not in params:  # controls read the gaze prior
-                base, bsrc, bparams = arm_prior("gaze", self.cfg)
-                assert base is not None and bsrc is not None
-                needed.setdefault(base, (base, bsrc, bparams))
-            needed[name] = (name, source, params)
+            if name is not None and source is not None:
+                needed[name] = (name, source, params)
         return list(needed.values())
 
     def stage_priors(self, _: dict[str, Any]) -> dict[str, Any]:
