@@ -176,6 +176,9 @@ def verdict(
             test = (paired or {}).get(f"{arm} vs {reference} | {cond}")
             if test is not None:
                 p = test["mcnemar_p"]
+                if "rate_ci95" in test:
+                    lo, hi = test["rate_ci95"]
+                    head += f", paired difference 95% CI [{lo:+.2f}, {hi:+.2f}]"
                 if p < alpha:
                     out.append(
                         f"{head}; paired McNemar p = {p:.3g} < {alpha}: {arm} is {better} ({intervals})."
