@@ -54,6 +54,9 @@ def test_paired_tests_pair_by_seed_and_task():
     assert "do not overlap" in v[0] and "better" in v[0]
     v = verdict(success_table(recs), paired=paired_tests(recs))
     assert "(+1.00), paired difference 95% CI [+0." in v[0] and "gaze is better" in v[0]
+    assert verdict(success_table(records("baseline@s0", [1, 0]))) == [
+        "Only the baseline arm ran: no comparison."
+    ]
     v = verdict(success_table(records("baseline@s0", [1, 0]) + records("gaze@s0", [0, 1])))
     assert "overlap, so this budget does not decide" in v[0]
 

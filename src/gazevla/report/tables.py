@@ -191,7 +191,7 @@ def verdict(
                 out.append(f"{head}; {intervals}: {arm} is {better}.")
             else:
                 out.append(f"{head}; {intervals}, so this budget does not decide it.")
-    return out
+    return out or [f"Only the {reference} arm ran: no comparison."]
 
 
 def machine_summary() -> dict[str, Any]:
