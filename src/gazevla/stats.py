@@ -34,14 +34,21 @@ def binom_two_sided(k: int, n: int, p: float = 0.5) -> float:
     return min(1.0, sum(q for q in pmf if q <= pmf[k] * (1 + 1e-9)))
 
 
+def paired_counts(a: Sequence[bool], b: Sequence[bool]) -> tuple[int, int, int, int]:
+    """The 2x2 table of two arms' outcomes on the same seeds: (both solved, only a, only b, neither)."""
+    if len(a) != len(b):
+        raise ValueError(f"paired outcomes must have equal length, got {len(a)} and {len(b)}")
+    both = sum(1 for x, y in zip(a, b) if x and y)
+    a_only = sum(1 for x, y in zip(a, b) if x and not y)
+    b_only = sum(1 for x, y in zip(a, b) if y and not x)
+    return both, a_only, b_only, len(a) - both - a_only - b_only
+
+
 def mcnemar_exact(a: Sequence[bool], b: Sequence[bool]) -> dict[str, float]:
     """Paired exact test of two arms' outcomes on the same seeds.
 
     Returns {"a_only": episodes only a solved, "b_only": only b solved, "p_value": two-sided}."""
-    if len(a) != len(b):
-        raise ValueError(f"paired outcomes must have equal length, got {len(a)} and {len(b)}")
-    a_only = sum(1 for x, y in zip(a, b) if x and not y)
-    b_only = sum(1 for x, y in zip(a, b) if y and not x)
+    _, a_only, b_only, _ = paired_counts(a, b)
     return {"a_only": a_only, "b_only": b_only, "p_value": binom_two_sided(a_only, a_only + b_only)}
 
 
@@ -51,15 +58,10 @@ def paired_rate_difference(a: Sequence[bool], b: Sequence[bool], z: float = 1.95
     Unlike a Wald interval it stays inside [-1, 1] and keeps its coverage near 0 or 1 and with few pairs.
 
     Returns {"n": pairs, "diff": rate(a) - rate(b), "ci95": [low, high]}."""
-    if len(a) != len(b):
-        raise ValueError(f"paired outcomes must have equal length, got {len(a)} and {len(b)}")
+    both, a_only, b_only, neither = paired_counts(a, b)
     n = len(a)
     if n == 0:
         raise ValueError("no pairs to compare")
-    both = sum(1 for x, y in zip(a, b) if x and y)
-    a_only = sum(1 for x, y in zip(a, b) if x and not y)
-    b_only = sum(1 for x, y in zip(a, b) if y and not x)
-    neither = n - both - a_only - b_only
     pa, pb = (both + a_only) / n, (both + b_only) / n
     (la, ua), (lb, ub) = wilson(both + a_only, n, z), wilson(both + b_only, n, z)
     margins = (both + a_only) * (b_only + neither) * (both + b_only) * (a_only + neither)

@@ -88,14 +88,15 @@ def paired_tests(records: list[dict[str, Any]], reference: str = "baseline") -> 
     reference) with its 95% interval (`stats.paired_rate_difference`)."""
     out = {}
     for name, arm, x, y in paired_by_setup(records, lambda r: bool(r["success"]), reference):
-        m = mcnemar_exact(x, y)
+        m, d = mcnemar_exact(x, y), paired_rate_difference(x, y)
         out[name] = {
             "pairs": len(x),
             f"{arm}_only": m["a_only"],
             f"{reference}_only": m["b_only"],
             "mcnemar_p": m["p_value"],
             "fisher_p": fisher_exact(sum(x), len(x), sum(y), len(y)),
-            **{f"rate_{k}": v for k, v in paired_rate_difference(x, y).items() if k != "n"},
+            "rate_diff": d["diff"],
+            "rate_ci95": d["ci95"],
         }
     return out
 
