@@ -10,7 +10,7 @@ setup:
 	@EXTRAS=$(EXTRAS) VENV=$(VENV) bash scripts/setup.sh
 
 demo: setup
-	$(VENV)/bin/gazevla experiment --preset quick
+	$(VENV)/bin/gazereg experiment --preset quick
 
 RUFF_PATHS := src tests benchmarks examples scripts lerobot_plugin tests_lerobot
 
@@ -26,7 +26,7 @@ lint: setup
 bench: setup
 	$(PY) benchmarks/run_all.py
 
-# LeRobot (Python >= 3.12) lane: its own cached venv in ~/.cache/gazevla; skipped where no Python 3.12 exists.
+# LeRobot (Python >= 3.12) lane: its own cached venv in ~/.cache/gazereg; skipped where no Python 3.12 exists.
 lerobot-lane:
 	bash scripts/lerobot_lane.sh
 

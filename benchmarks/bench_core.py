@@ -15,7 +15,7 @@ import torch
 from _timing import median_time
 from torch import nn
 
-from gazevla import (
+from gazereg import (
     AggregationConfig,
     AttentionProbe,
     PatchGeometry,

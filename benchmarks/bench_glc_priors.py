@@ -3,7 +3,7 @@
     python benchmarks/bench_glc_priors.py [--threads 2] [--repeat 3] [--skip-full] [--skip-small] [--frames-small 96] [--frames-full 24]
 
 For each config (small, full; random weights) and mode (average = the default efficient mode, centre = one
-clip per frame) one synthetic episode of 96x96 frames goes through what `gazevla priors` does per episode:
+clip per frame) one synthetic episode of 96x96 frames goes through what `gazereg priors` does per episode:
 the source (clip planning, resize/crop/normalise, batched forward, softmax, per-frame averaging, resize to
 64x64, renormalisation) and the temporal aggregation (past=2, future=2). The reference is the model's
 forward alone on the same number of clips in the same batch sizes, on a ready input tensor. Source and
@@ -22,9 +22,9 @@ import time
 
 import torch
 
-from gazevla.gaze.aggregation import AggregationConfig, aggregate
-from gazevla.gaze.sources.glc import GLCGaze
-from gazevla.glc.data import synthetic_gaze_episode
+from gazereg.gaze.aggregation import AggregationConfig, aggregate
+from gazereg.gaze.glc.data import synthetic_gaze_episode
+from gazereg.gaze.sources.glc import GLCGaze
 
 
 def bench(

@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 from _timing import run_times
 
-from gazevla.data.hdf5 import Hdf5ImportConfig, import_hdf5
-from gazevla.data.lerobot_v3 import LeRobotImportConfig, LeRobotV3Dataset, import_lerobot
+from gazereg.data.formats.hdf5 import Hdf5ImportConfig, import_hdf5
+from gazereg.data.formats.lerobot_v3 import LeRobotImportConfig, LeRobotV3Dataset, import_lerobot
 
 DEFAULT_FIXTURE = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "lerobot_v3_tiny"
 
@@ -151,7 +151,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument(
-        "--fixture", type=Path, default=Path(os.environ.get("GAZEVLA_LEROBOT_FIXTURE", DEFAULT_FIXTURE))
+        "--fixture", type=Path, default=Path(os.environ.get("GAZEREG_LEROBOT_FIXTURE", DEFAULT_FIXTURE))
     )
     ap.add_argument("--demos", type=int, default=20)
     ap.add_argument("--frames", type=int, default=150)

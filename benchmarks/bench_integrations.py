@@ -20,8 +20,8 @@ import time
 
 import torch
 
-from gazevla.integrations.tiny import tiny_batch, tiny_model
-from gazevla.integrations.transformers import GazeRegularizer
+from gazereg.integrations.tiny import tiny_batch, tiny_model
+from gazereg.integrations.transformers import GazeRegularizer
 
 SIZES = {
     # family: tiny_model kwargs; 2 cameras each

@@ -1,6 +1,6 @@
 """Training-step cost of the LeRobot plugin's gaze term (`smolvla_gaze`) against plain `smolvla` (CPU), as JSON.
 
-    ~/.cache/gazevla/lerobot-py312/bin/python benchmarks/bench_lerobot_capture.py [--steps 15] [--batch 4]
+    ~/.cache/gazereg/lerobot-py312/bin/python benchmarks/bench_lerobot_capture.py [--steps 15] [--batch 4]
 
 Needs the LeRobot lane (Python >= 3.12 venv with lerobot 0.6.1 and the plugin, scripts/lerobot_lane.sh); under
 another interpreter without lerobot it prints {"skipped": ...} and exits 0, so benchmarks/run_all.py keeps going.
@@ -24,7 +24,7 @@ import tempfile
 import time
 from pathlib import Path
 
-DEFAULT_FIXTURE = Path(os.environ.get("GAZEVLA_FIXTURES", "/work/shared/fixtures")) / "lerobot_v3_tiny"
+DEFAULT_FIXTURE = Path(os.environ.get("GAZEREG_FIXTURES", "/work/shared/fixtures")) / "lerobot_v3_tiny"
 GAZE_CAMERA = "observation.images.front"
 
 
@@ -33,8 +33,8 @@ def build(kind: str, vlm: Path, dataset, seed: int):
     import torch
     from lerobot.policies import make_policy, make_pre_post_processors
     from lerobot.policies.smolvla.configuration_smolvla import SmolVLAConfig
-    from lerobot_policy_gazevla.configuration_smolvla_gaze import SmolVLAGazeConfig
-    from lerobot_policy_gazevla.testing import tiny_smolvla_args
+    from lerobot_policy_gazereg.configuration_smolvla_gaze import SmolVLAGazeConfig
+    from lerobot_policy_gazereg.testing import tiny_smolvla_args
 
     args = tiny_smolvla_args(vlm)
     if kind == "gaze":
@@ -71,7 +71,7 @@ def main() -> int:
 
     import torch
     from lerobot.datasets import LeRobotDataset
-    from lerobot_policy_gazevla.testing import make_tiny_smolvlm
+    from lerobot_policy_gazereg.testing import make_tiny_smolvlm
 
     torch.set_num_threads(a.threads)
     dataset = LeRobotDataset(

@@ -25,7 +25,7 @@ def run(
 ) -> dict[str, float]:
     import numpy as np
 
-    from gazevla.envs.libero import LiberoEnv
+    from gazereg.envs.libero.env import LiberoEnv
 
     t0 = time.perf_counter()
     env = LiberoEnv(
@@ -62,9 +62,9 @@ def run(
 
 def expert_report(inits: int, noise: float, max_steps: int) -> dict[str, object]:
     """SpatialExpert's success on initial states 0..inits-1 of each LIBERO-Spatial task."""
-    from gazevla.envs.libero import LiberoEnv
-    from gazevla.envs.libero_expert import SpatialExpert
-    from gazevla.envs.rollout import noise_seed
+    from gazereg.envs.libero.env import LiberoEnv
+    from gazereg.envs.libero.expert import SpatialExpert
+    from gazereg.envs.recording import noise_seed
 
     tasks = {}
     t_all = time.perf_counter()
@@ -117,7 +117,7 @@ def main() -> int:
     ap.add_argument("--expert-noise", type=float, default=0.0)
     ap.add_argument("--expert-max-steps", type=int, default=300)
     args = ap.parse_args()
-    from gazevla.envs.libero import libero_available
+    from gazereg.envs.libero.env import libero_available
 
     ok, why = libero_available()
     if not ok:
@@ -127,7 +127,7 @@ def main() -> int:
         report = expert_report(args.expert_inits, args.expert_noise, args.expert_max_steps)
         print(json.dumps({"benchmark": "libero_expert", **report}, indent=1))
         return 0
-    from gazevla.envs.render import select_gl_backend
+    from gazereg.envs.render import select_gl_backend
 
     out = {
         "benchmark": "libero",

@@ -4,11 +4,11 @@
 
 Env steps are timed in this process pinned to one core (the GL renderer's threads too), with Meta-World's
 scripted expert acting (pick-place-v3, the episode restarting when it ends), for: physics only; one camera at
-128x128 and 96x96 with gazevla's render settings; and 128x128 with the original meshes (no simplification),
-for comparison. Collection runs `gazevla.envs.collect` with `--workers` processes on every core. Prints one
+128x128 and 96x96 with gazereg's render settings; and 128x128 with the original meshes (no simplification),
+for comparison. Collection runs `gazereg.envs.collect` with `--workers` processes on every core. Prints one
 JSON object, including the machine's load average before and after (other jobs on the machine slow it down;
 the CPU time per step / frame does not depend on them).
-The OpenGL backend is chosen by `gazevla.envs.render.select_gl_backend` and passed explicitly.
+The OpenGL backend is chosen by `gazereg.envs.render.select_gl_backend` and passed explicitly.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from pathlib import Path
 
 
 def env_steps_per_s(task: str, steps: int, gl_backend: str, **env_kwargs) -> dict[str, float]:
-    from gazevla.envs import Expert, MetaWorldEnv
+    from gazereg.envs import Expert, MetaWorldEnv
 
     env = MetaWorldEnv(task, max_steps=500, terminate_on_success=False, gl_backend=gl_backend, **env_kwargs)
     expert = Expert(task)
@@ -66,8 +66,8 @@ def main() -> int:
     ap.add_argument("--image-size", type=int, default=96, help="collection image size")
     args = ap.parse_args()
 
-    from gazevla.envs.collect import CollectConfig, available_cores, collect
-    from gazevla.envs.render import select_gl_backend
+    from gazereg.envs.collect import CollectConfig, available_cores, collect
+    from gazereg.envs.render import select_gl_backend
 
     backend = select_gl_backend()
     result: dict = {

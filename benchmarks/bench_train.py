@@ -30,11 +30,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from gazevla.attention.probe import AttentionProbe
-from gazevla.data.dataset import EpisodeDataset, StepBatchSampler, collate_batch
-from gazevla.data.store import Episode, EpisodeStore
-from gazevla.losses import gaze_loss
-from gazevla.policies.vla import Tokenizer, VLAConfig, VLAPolicy
+from gazereg.attention.probe import AttentionProbe
+from gazereg.data.dataset import EpisodeDataset, StepBatchSampler, collate_batch
+from gazereg.data.store import Episode, EpisodeStore
+from gazereg.losses import gaze_loss
+from gazereg.policies.vla import Tokenizer, VLAConfig, VLAPolicy
 
 MODES = ("baseline", "gaze_probe", "naive_all_layers")
 

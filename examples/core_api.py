@@ -8,7 +8,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from gazevla import (
+from gazereg import (
     AggregationConfig,
     AttentionProbe,
     PatchGeometry,
@@ -18,7 +18,7 @@ from gazevla import (
     heatmaps_from_points,
     patch_distribution,
 )
-from gazevla.attention import tap
+from gazereg.attention import tap
 
 torch.manual_seed(0)
 T, n_patches, dim = 12, 16, 32

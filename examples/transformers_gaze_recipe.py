@@ -14,9 +14,9 @@ import argparse
 
 import torch
 
-from gazevla import heatmaps_from_points, patch_distribution
-from gazevla.integrations.tiny import tiny_batch, tiny_model
-from gazevla.integrations.transformers import GazeRegularizer, camera_geometry
+from gazereg import heatmaps_from_points, patch_distribution
+from gazereg.integrations.tiny import tiny_batch, tiny_model
+from gazereg.integrations.transformers import GazeRegularizer, camera_geometry
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--family", default="pi0", choices=["pi0", "paligemma", "idefics3", "smolvlm", "llava"])
@@ -38,7 +38,7 @@ cameras = ("front", "wrist")
 geometries = {cam: camera_geometry(model, src_hw=(48, 64)) for cam in cameras}
 
 # gaze: per-frame gaze points (u right, v down, normalised) -> heatmaps -> patch distributions. In practice they
-# come precomputed from `gazevla` priors (GLC predictions aggregated over time) stored with the data set.
+# come precomputed from `gazereg` priors (GLC predictions aggregated over time) stored with the data set.
 points = {
     "front": torch.tensor([[0.25, 0.3], [0.3, 0.35], [0.7, 0.6], [0.75, 0.7]]),
     "wrist": torch.rand(4, 2),

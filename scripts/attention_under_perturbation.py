@@ -17,12 +17,12 @@ from typing import Any
 
 import torch
 
-from gazevla.alignment import attention_maps, attention_shift
-from gazevla.data.dataset import EpisodeDataset
-from gazevla.data.store import EpisodeStore
-from gazevla.envs.collect import CollectConfig, collect
-from gazevla.policies import load_policy
-from gazevla.utils.io import atomic_write_json, atomic_write_text
+from gazereg.data.dataset import EpisodeDataset
+from gazereg.data.store import EpisodeStore
+from gazereg.envs.collect import CollectConfig, collect
+from gazereg.evaluation.alignment import attention_maps, attention_shift
+from gazereg.policies import load_policy
+from gazereg.runtime.io import atomic_write_json, atomic_write_text
 
 
 def slug(condition: str) -> str:
@@ -83,8 +83,8 @@ def markdown(run: Path, condition: str, rows: dict[str, dict[str, Any]]) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("run_dir", type=Path, help="a finished `gazevla experiment` folder")
-    ap.add_argument("--condition", default="dim:0.7", help="a perturbation spec, as in `gazevla eval`")
+    ap.add_argument("run_dir", type=Path, help="a finished `gazereg experiment` folder")
+    ap.add_argument("--condition", default="dim:0.7", help="a perturbation spec, as in `gazereg eval`")
     args = ap.parse_args()
     run = args.run_dir
     if not (run / "stages" / "train.json").exists():

@@ -1,19 +1,19 @@
 #!/usr/bin/env bash
 # The LeRobot lane: lerobot 0.6.1 needs Python >= 3.12, so it lives in its own venv, outside the repository
-# (reused across runs and clones): $GAZEVLA_LEROBOT_VENV, default ~/.cache/gazevla/lerobot-py312.
-# Creates/reuses it, installs gazevla's core (--no-deps) and the lerobot_policy_gazevla plugin into it, and runs
+# (reused across runs and clones): $GAZEREG_LEROBOT_VENV, default ~/.cache/gazereg/lerobot-py312.
+# Creates/reuses it, installs gazereg's core (--no-deps) and the lerobot_policy_gazereg plugin into it, and runs
 # tests_lerobot/. Exits 0 with "skipped: no Python 3.12" where no Python 3.12 interpreter exists.
 #
 #   bash scripts/lerobot_lane.sh [pytest args...]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$(pwd)
-VENV=${GAZEVLA_LEROBOT_VENV:-$HOME/.cache/gazevla/lerobot-py312}
+VENV=${GAZEREG_LEROBOT_VENV:-$HOME/.cache/gazereg/lerobot-py312}
 LEROBOT_REQ='lerobot[smolvla,pi,dataset]==0.6.1'
 start=$(date +%s)
 
 find_py312() {
-    if [[ -n "${GAZEVLA_PY312:-}" && -x "${GAZEVLA_PY312}" ]]; then echo "$GAZEVLA_PY312"; return; fi
+    if [[ -n "${GAZEREG_PY312:-}" && -x "${GAZEREG_PY312}" ]]; then echo "$GAZEREG_PY312"; return; fi
     local root
     if command -v pyenv >/dev/null 2>&1 && root=$(pyenv root 2>/dev/null); then
         for p in "$root"/versions/3.12*/bin/python; do [[ -x "$p" ]] && { echo "$p"; return; }; done
@@ -22,13 +22,13 @@ find_py312() {
     command -v python3.12 2>/dev/null || true
 }
 
-stamp="$VENV/.gazevla-lane"
+stamp="$VENV/.gazereg-lane"
 if [[ -x "$VENV/bin/python" && -f "$stamp" && "$(cat "$stamp")" == "$LEROBOT_REQ" ]]; then
     echo "lerobot lane: reusing $VENV"
 else
     PY312=$(find_py312)
     if [[ -z "$PY312" ]]; then
-        echo "skipped: no Python 3.12 (lerobot >= 0.5 needs Python >= 3.12; set GAZEVLA_PY312 or install one with pyenv)"
+        echo "skipped: no Python 3.12 (lerobot >= 0.5 needs Python >= 3.12; set GAZEREG_PY312 or install one with pyenv)"
         exit 0
     fi
     echo "lerobot lane: creating $VENV with $PY312 (about 3 minutes and 5.7 GB)"
@@ -40,7 +40,7 @@ else
     echo "$LEROBOT_REQ" >"$stamp"
 fi
 
-# gazevla's core modules need only torch and numpy (both come with lerobot): install it without dependencies,
+# gazereg's core modules need only torch and numpy (both come with lerobot): install it without dependencies,
 # editable from this checkout, next to the plugin. Re-run every time (seconds) so the venv follows the checkout.
 "$VENV/bin/pip" install -q --no-deps --no-build-isolation -e "$ROOT" -e "$ROOT/lerobot_plugin"
 

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The LIBERO lane's venv: LIBERO (hf-libero 0.1.4, robosuite 1.4.0) needs its own MuJoCo (< 3.9) while
 # Meta-World pins mujoco 3.3.0, so it lives outside the project's .venv (reused across runs and clones):
-# $GAZEVLA_LIBERO_VENV, default ~/.cache/gazevla/libero-venv. Idempotent: a venv whose stamp matches is reused
-# and only gazevla (editable, --no-deps) is reinstalled. About 2.5 GB (CPU torch + LIBERO assets, ~620 MB).
+# $GAZEREG_LIBERO_VENV, default ~/.cache/gazereg/libero-venv. Idempotent: a venv whose stamp matches is reused
+# and only gazereg (editable, --no-deps) is reinstalled. About 2.5 GB (CPU torch + LIBERO assets, ~620 MB).
 #
 #   bash scripts/libero_env.sh                      # create/refresh the venv
 #   bash scripts/libero_env.sh pytest -m slow tests/envs/test_libero.py   # ... then run a command in it
@@ -13,8 +13,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$(pwd)
-VENV=${GAZEVLA_LIBERO_VENV:-$HOME/.cache/gazevla/libero-venv}
-PY=${GAZEVLA_LIBERO_PYTHON:-python3.11}
+VENV=${GAZEREG_LIBERO_VENV:-$HOME/.cache/gazereg/libero-venv}
+PY=${GAZEREG_LIBERO_PYTHON:-python3.11}
 REQ=(
     "torch==2.13.0"
     "robosuite==1.4.0" "mujoco>=3.0,<3.9" "bddl==1.0.1" "hydra-core>=1.2,<1.4" "easydict" "einops"
@@ -25,7 +25,7 @@ REQ=(
 )
 LIBERO_REQ="hf-libero==0.1.4"
 want="$LIBERO_REQ ${REQ[*]}"
-stamp="$VENV/.gazevla-libero"
+stamp="$VENV/.gazereg-libero"
 
 if [[ -x "$VENV/bin/python" && -f "$stamp" && "$(cat "$stamp")" == "$want" ]]; then
     echo "libero venv: reusing $VENV" >&2
@@ -39,13 +39,13 @@ else
     "$VENV/bin/pip" install -q --no-deps "$LIBERO_REQ"
     echo "$want" >"$stamp"
 fi
-# gazevla's own runtime dependencies, so that `gazevla collect/priors/train/eval --env libero` run here too
+# gazereg's own runtime dependencies, so that `gazereg collect/priors/train/eval --env libero` run here too
 # (installed once, outside the stamp: adding them does not rebuild the venv).
 RUNTIME=("tyro>=0.9" "tqdm>=4.66" "safetensors>=0.4" "accelerate>=1.0")
 if ! "$VENV/bin/python" -c "import tyro, tqdm, safetensors, accelerate" 2>/dev/null; then
     "$VENV/bin/pip" install -q "${RUNTIME[@]}"
 fi
-# Follow the checkout (seconds): gazevla's LIBERO wrapper needs only numpy, gymnasium and mujoco from here.
+# Follow the checkout (seconds): gazereg's LIBERO wrapper needs only numpy, gymnasium and mujoco from here.
 "$VENV/bin/pip" install -q --no-deps --no-build-isolation -e "$ROOT"
 
 if [[ $# -gt 0 ]]; then

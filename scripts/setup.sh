@@ -37,7 +37,7 @@ if [[ ! -x "$VENV/bin/python" ]]; then
   "$VENV/bin/python" -m pip install -q --upgrade pip
 fi
 
-stamp="$VENV/.gazevla-installed"
+stamp="$VENV/.gazereg-installed"
 want="$(cat pyproject.toml scripts/setup.sh | sha256sum | cut -c1-16) $EXTRAS $TORCH_SPEC"
 if [[ -f "$stamp" && "$(cat "$stamp")" == "$want" ]]; then
   exit 0
@@ -47,7 +47,7 @@ if ! "$VENV/bin/python" -c "import torch" >/dev/null 2>&1; then
   log "installing $TORCH_SPEC"
   "$VENV/bin/python" -m pip install -q "$TORCH_SPEC"
 fi
-log "installing gazevla[$EXTRAS]"
+log "installing gazereg[$EXTRAS]"
 "$VENV/bin/python" -m pip install -q -e ".[$EXTRAS]"
 echo "$want" > "$stamp"
-log "done: $("$VENV/bin/python" -c 'import torch, gazevla; print("torch", torch.__version__, "gazevla", gazevla.__version__)')"
+log "done: $("$VENV/bin/python" -c 'import torch, gazereg; print("torch", torch.__version__, "gazereg", gazereg.__version__)')"

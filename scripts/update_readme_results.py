@@ -8,8 +8,8 @@ python scripts/update_readme_results.py runs/paper6k --against runs/paper --mark
 import argparse
 from pathlib import Path
 
-from gazevla.report import replace_block, update_readme
-from gazevla.report.compare import compare_markdown, compare_runs
+from gazereg.report import replace_block, update_readme
+from gazereg.report.compare import compare_markdown, compare_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from gazevla.alignment import alignment_report, attention_shift
+from gazereg.evaluation.alignment import alignment_report, attention_shift
 
 
 def _maps(attn: torch.Tensor) -> dict[str, torch.Tensor]:

@@ -1,14 +1,14 @@
 import subprocess
 import sys
 
-from gazevla.cli import main
-from gazevla.config import split_preset
+from gazereg.cli import main
+from gazereg.runtime.config import split_preset
 
 
 def test_help_lists_available_commands(capsys):
     assert main(["--help"]) == 0
     out = capsys.readouterr().out
-    assert "usage: gazevla" in out
+    assert "usage: gazereg" in out
 
 
 def test_unknown_command_is_an_error(capsys):
@@ -24,6 +24,6 @@ def test_split_preset():
 
 def test_console_script_runs():
     r = subprocess.run(
-        [sys.executable, "-m", "gazevla.cli", "--help"], capture_output=True, text=True, check=True
+        [sys.executable, "-m", "gazereg.cli", "--help"], capture_output=True, text=True, check=True
     )
     assert "commands:" in r.stdout

@@ -5,7 +5,7 @@ import time
 
 import pytest
 
-from gazevla.utils.clock import ResumableClock
+from gazereg.runtime.clock import ResumableClock
 
 
 def _saved(path):

@@ -2,8 +2,8 @@ import json
 
 import pytest
 
-from gazevla.config import config_diff
-from gazevla.report.compare import compare_markdown, compare_records, compare_runs, main
+from gazereg.report.compare import compare_markdown, compare_records, compare_runs, main
+from gazereg.runtime.config import config_diff
 
 
 def records(arm, successes, condition="clean", task="reach-v3", start=1000, distance=None):

@@ -2,7 +2,7 @@
 
 import pytest
 
-import gazevla.evaluate as ev
+import gazereg.evaluation.rollout as ev
 
 
 @pytest.fixture

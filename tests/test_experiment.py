@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from gazevla.experiment import STAGES, main
+from gazereg.experiment import STAGES, main
 
 pytestmark = pytest.mark.sim
 
@@ -28,7 +28,7 @@ def test_smoke_experiment_end_to_end_and_resume(tmp_path, capsys):
     for fig in report["figures"].values():
         assert (out / fig).stat().st_size > 1000
     assert report["videos"] and all((out / v).exists() for v in report["videos"])
-    assert (out / "report.md").read_text().startswith("# gazevla experiment")
+    assert (out / "report.md").read_text().startswith("# gazereg experiment")
     eval_info = json.loads((out / "eval" / "eval_info.json").read_text())
     seeds = {
         (e["arm"], e["condition"]): sorted(
@@ -74,8 +74,8 @@ def test_smoke_experiment_end_to_end_and_resume(tmp_path, capsys):
 def test_every_experiment_makes_the_gaze_prior_that_alignment_measures_against(tmp_path):
     from dataclasses import replace
 
-    from gazevla.experiment import Experiment
-    from gazevla.experiment.config import smoke
+    from gazereg.experiment import Experiment
+    from gazereg.experiment.config import smoke
 
     def needed(*arms):
         return [name for name, _, _ in Experiment(replace(smoke(), arms=arms, out=tmp_path)).priors_needed()]

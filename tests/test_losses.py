@@ -5,7 +5,7 @@ import torch
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gazevla.losses import WeightSchedule, gaze_kl, gaze_loss
+from gazereg.losses import WeightSchedule, gaze_kl, gaze_loss
 
 
 def _dists(seed, n=16, b=4, sparse=False):

@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from gazevla.metrics import alignment_metrics, auc_judd, cc, kl, mass_in_region, nss, sim
+from gazereg.metrics import alignment_metrics, auc_judd, cc, kl, mass_in_region, nss, sim
 
 
 def test_identical_maps_are_perfectly_aligned():

@@ -3,8 +3,8 @@ import torch
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from gazevla.gaze.heatmaps import heatmaps_from_points
-from gazevla.patches import PatchGeometry, grid_to_image, patch_distribution, patch_distributions
+from gazereg.gaze.heatmaps import heatmaps_from_points
+from gazereg.patches import PatchGeometry, grid_to_image, patch_distribution, patch_distributions
 
 
 @st.composite

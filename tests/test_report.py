@@ -2,8 +2,8 @@ import json
 
 import pytest
 
-from gazevla.evaluate import format_table, summarize
-from gazevla.report import (
+from gazereg.evaluation.rollout import format_table, summarize
+from gazereg.report import (
     convergence,
     distance_table,
     markdown,
@@ -161,7 +161,7 @@ def test_markdown_and_readme_block(tmp_path):
 
 
 def test_eval_worker_rejects_an_unknown_simulator():
-    from gazevla.evaluate import Worker
+    from gazereg.evaluation.rollout import Worker
 
     with pytest.raises(ValueError, match="unknown simulator 'gazebo'"):
         Worker(max_steps=10, gl_backend=None, env="gazebo")

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from gazevla.stats import (
+from gazereg.evaluation.stats import (
     binom_two_sided,
     fisher_exact,
     mcnemar_exact,
@@ -37,7 +37,7 @@ def test_steps_to_threshold():
 
 
 def test_paired_mean_difference():
-    from gazevla.stats import paired_mean_difference
+    from gazereg.evaluation.stats import paired_mean_difference
 
     same = paired_mean_difference([0.1, 0.2, 0.3], [0.1, 0.2, 0.3])
     assert same["mean_diff"] == 0 and same["p_value"] == 1.0

@@ -1,4 +1,4 @@
-"""Shared fixtures of the LeRobot lane (Python 3.12 venv with lerobot 0.6.1 and the gazevla plugin)."""
+"""Shared fixtures of the LeRobot lane (Python 3.12 venv with lerobot 0.6.1 and the gazereg plugin)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("lerobot", reason="the LeRobot lane needs lerobot (scripts/lerobot_lane.sh)")
-pytest.importorskip("lerobot_policy_gazevla", reason="the gazevla LeRobot plugin is not installed")
+pytest.importorskip("lerobot_policy_gazereg", reason="the gazereg LeRobot plugin is not installed")
 
-FIXTURE = Path(os.environ.get("GAZEVLA_FIXTURES", "/work/shared/fixtures")) / "lerobot_v3_tiny"
+FIXTURE = Path(os.environ.get("GAZEREG_FIXTURES", "/work/shared/fixtures")) / "lerobot_v3_tiny"
 
 
 @pytest.fixture(scope="session")
@@ -22,7 +22,7 @@ def dataset_root() -> Path:
 
 @pytest.fixture(scope="session")
 def tiny_vlm(tmp_path_factory) -> Path:
-    from lerobot_policy_gazevla.testing import make_tiny_smolvlm
+    from lerobot_policy_gazereg.testing import make_tiny_smolvlm
 
     return make_tiny_smolvlm(tmp_path_factory.mktemp("tiny_smolvlm"))
 
@@ -40,8 +40,8 @@ def dataset(dataset_root):
 
 
 def make_config(tiny_vlm, **kw):
-    from lerobot_policy_gazevla.configuration_smolvla_gaze import SmolVLAGazeConfig
-    from lerobot_policy_gazevla.testing import tiny_smolvla_args
+    from lerobot_policy_gazereg.configuration_smolvla_gaze import SmolVLAGazeConfig
+    from lerobot_policy_gazereg.testing import tiny_smolvla_args
 
     args = {
         **tiny_smolvla_args(tiny_vlm),

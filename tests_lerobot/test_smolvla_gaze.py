@@ -1,4 +1,4 @@
-"""The gazevla LeRobot plugin: discovery, exact attention capture, unchanged outputs, gradients, gaze targets,
+"""The gazereg LeRobot plugin: discovery, exact attention capture, unchanged outputs, gradients, gaze targets,
 and lerobot-train on the tiny LeRobot v3 fixture with a tiny offline SmolVLA."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from conftest import make_config
-from gazevla.patches import PatchGeometry
+from gazereg.patches import PatchGeometry
 
 
 def test_lerobot_discovers_the_plugin():
@@ -29,13 +29,13 @@ def test_lerobot_discovers_the_plugin():
         "from lerobot.policies.factory import get_policy_class\n"
         "cls = get_policy_class('smolvla_gaze')\n"
         "import importlib\n"
-        "proc = importlib.import_module('lerobot_policy_gazevla.processor_smolvla_gaze')\n"
+        "proc = importlib.import_module('lerobot_policy_gazereg.processor_smolvla_gaze')\n"
         "print(cls.__module__, cls.__name__, proc.make_smolvla_gaze_pre_post_processors.__name__)\n"
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     assert r.stdout.split() == [
-        "lerobot_policy_gazevla.modeling_smolvla_gaze",
+        "lerobot_policy_gazereg.modeling_smolvla_gaze",
         "SmolVLAGazePolicy",
         "make_smolvla_gaze_pre_post_processors",
     ]
@@ -140,7 +140,7 @@ def test_gaze_layers_must_have_an_expert(tiny_vlm, dataset):
 
 
 def test_gaze_targets_follow_smolvla_left_top_padding():
-    from lerobot_policy_gazevla.gaze_targets import gaze_distribution, smolvla_geometry
+    from lerobot_policy_gazereg.gaze_targets import gaze_distribution, smolvla_geometry
 
     # a 32x64 (h, w) frame fitted into 64x64 with padding on the top: content in rows 32..63 of the input
     geom, flip = smolvla_geometry((32, 64), (64, 64), patch_size=8, pixel_shuffle=2)  # 4x4 token grid

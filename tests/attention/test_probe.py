@@ -5,8 +5,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from gazevla.attention.probe import AttentionProbe, ProbeSpec, tap
-from gazevla.losses import gaze_loss
+from gazereg.attention.probe import AttentionProbe, ProbeSpec, tap
+from gazereg.losses import gaze_loss
 
 
 class TinyAttention(nn.Module):

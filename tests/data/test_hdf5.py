@@ -8,10 +8,10 @@ import pytest
 
 h5py = pytest.importorskip("h5py")
 
-from gazevla.data import importers  # noqa: E402
-from gazevla.data.hdf5 import Hdf5ImportConfig, import_hdf5, instruction_from_filename  # noqa: E402
-from gazevla.data.importers import DataImportError  # noqa: E402
-from gazevla.data.store import EpisodeStore  # noqa: E402
+from gazereg.data import importers  # noqa: E402
+from gazereg.data.formats.hdf5 import Hdf5ImportConfig, import_hdf5, instruction_from_filename  # noqa: E402
+from gazereg.data.importers import DataImportError  # noqa: E402
+from gazereg.data.store import EpisodeStore  # noqa: E402
 
 HW = (24, 32)
 MARK = (3, 5)  # (row, col) of the bright marker in the raw (upside-down) agentview image
@@ -222,9 +222,9 @@ def test_cli(tmp_path, capsys):
 
 def test_export_priors_of_hdf5_episodes_stays_upright(tmp_path):
     pytest.importorskip("pyarrow")
-    from gazevla.data.lerobot_export import export_priors_lerobot, read_priors_lerobot
-    from gazevla.gaze.aggregation import AggregationConfig
-    from gazevla.gaze.priors import PriorsConfig, make_priors
+    from gazereg.data.formats.lerobot_v3.export import export_priors_lerobot, read_priors_lerobot
+    from gazereg.gaze.aggregation import AggregationConfig
+    from gazereg.gaze.priors import PriorsConfig, make_priors
 
     src = write_libero(tmp_path / "put_the_bowl_on_the_plate_demo.hdf5", lengths=(4, 5), gaze=True)
     import_hdf5(cfg(src, tmp_path / "s", gaze_key="gaze_uv"))

@@ -12,17 +12,17 @@ pytest.importorskip("av")
 pa = pytest.importorskip("pyarrow")
 pq = pytest.importorskip("pyarrow.parquet")
 
-from gazevla.data import importers  # noqa: E402
-from gazevla.data.importers import DataImportError  # noqa: E402
-from gazevla.data.lerobot_export import export_priors_lerobot, read_priors_lerobot  # noqa: E402
-from gazevla.data.lerobot_v3 import LeRobotImportConfig, LeRobotV3Dataset, import_lerobot  # noqa: E402
-from gazevla.data.store import EpisodeStore  # noqa: E402
-from gazevla.data.video import VideoFile  # noqa: E402
-from gazevla.gaze.aggregation import AggregationConfig  # noqa: E402
-from gazevla.gaze.priors import PriorsConfig, make_priors  # noqa: E402
+from gazereg.data import importers  # noqa: E402
+from gazereg.data.formats.lerobot_v3 import LeRobotImportConfig, LeRobotV3Dataset, import_lerobot  # noqa: E402
+from gazereg.data.formats.lerobot_v3.export import export_priors_lerobot, read_priors_lerobot  # noqa: E402
+from gazereg.data.formats.video import VideoFile  # noqa: E402
+from gazereg.data.importers import DataImportError  # noqa: E402
+from gazereg.data.store import EpisodeStore  # noqa: E402
+from gazereg.gaze.aggregation import AggregationConfig  # noqa: E402
+from gazereg.gaze.priors import PriorsConfig, make_priors  # noqa: E402
 
 FIXTURE = (
-    Path(os.environ.get("GAZEVLA_FIXTURES", Path(__file__).resolve().parents[3] / "shared" / "fixtures"))
+    Path(os.environ.get("GAZEREG_FIXTURES", Path(__file__).resolve().parents[3] / "shared" / "fixtures"))
     / "lerobot_v3_tiny"
 )
 if not FIXTURE.exists():
@@ -470,7 +470,7 @@ def test_non_finite_state_is_refused_by_name(copy, tmp_path):
 
 
 def test_camera_names_and_image_shapes():
-    from gazevla.data.lerobot_v3_metadata import camera_name, image_hw, rgb_cameras
+    from gazereg.data.formats.lerobot_v3.metadata import camera_name, image_hw, rgb_cameras
 
     assert camera_name("observation.images.front") == "front"
     assert camera_name("observation.image.wrist/left") == "wrist_left"

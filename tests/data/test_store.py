@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from gazevla.data.store import Episode, EpisodeStore
+from gazereg.data.store import Episode, EpisodeStore
 
 
 def make_episode(T=5, cams=("front",), hw=(8, 8), task="reach-v3"):

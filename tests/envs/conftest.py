@@ -9,6 +9,6 @@ import pytest
 @pytest.fixture(scope="session")
 def gl_backend() -> str:
     pytest.importorskip("metaworld")
-    from gazevla.envs.render import select_gl_backend
+    from gazereg.envs.render import select_gl_backend
 
     return select_gl_backend()

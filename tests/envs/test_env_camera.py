@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from gazevla.envs.camera import CameraGeometry, needs_rot180
+from gazereg.envs.camera import CameraGeometry, needs_rot180
 
 
 def _look_down_x() -> tuple[np.ndarray, np.ndarray]:
@@ -52,7 +52,7 @@ def test_upside_down_cameras_are_detected():
 
 @pytest.fixture(scope="module")
 def reach_env(gl_backend):
-    from gazevla.envs import MetaWorldEnv
+    from gazereg.envs import MetaWorldEnv
 
     env = MetaWorldEnv(
         "reach-v3", cameras=("corner2", "corner", "topview"), image_size=96, gl_backend=gl_backend

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gazevla.envs.collect import CollectConfig, CollectError, _split_lists, collect, episode_index, main
+from gazereg.envs.collect import CollectConfig, CollectError, _split_lists, collect, episode_index, main
 
 
 def test_comma_lists_are_split():
@@ -50,7 +50,7 @@ def collected(tmp_path_factory, gl_backend):
 
 @pytest.mark.sim
 def test_collection_writes_what_it_claims(collected):
-    from gazevla.data.store import EpisodeStore
+    from gazereg.data.store import EpisodeStore
 
     cfg, report = collected
     assert report.complete and report.new_episodes == 4
@@ -100,7 +100,7 @@ def test_rerun_resumes_without_touching_episodes(collected):
     # More episodes: only the missing ones are collected, at the indices that (task, seed) determine.
     from dataclasses import replace
 
-    from gazevla.data.store import EpisodeStore
+    from gazereg.data.store import EpisodeStore
 
     report = collect(replace(cfg, tasks=("reach-v3",), episodes=3))
     assert report.new_episodes == 1 and 2 in EpisodeStore(cfg.out)
@@ -121,7 +121,7 @@ def test_mismatched_rerun_is_refused(collected):
 
 @pytest.mark.sim
 def test_failures_are_reported_not_stored(tmp_path, gl_backend):
-    from gazevla.data.store import EpisodeStore
+    from gazereg.data.store import EpisodeStore
 
     cfg = CollectConfig(
         out=tmp_path,
@@ -176,7 +176,7 @@ def test_command_line_with_comma_separated_tasks(tmp_path, gl_backend, capsys):
 @pytest.mark.slow
 def test_parallel_workers_give_the_same_episodes(tmp_path, gl_backend):
     """Two worker processes write the same episodes (bit for bit) as one process."""
-    from gazevla.data.store import EpisodeStore
+    from gazereg.data.store import EpisodeStore
 
     common = dict(
         tasks=("reach-v3",),
@@ -201,8 +201,8 @@ def test_parallel_workers_give_the_same_episodes(tmp_path, gl_backend):
 @pytest.mark.sim
 def test_perturbed_collection_is_the_same_episode_under_other_light(tmp_path, gl_backend):
     """dim:0.7 renders the same setups and expert actions as clean, only darker, into a store of its own."""
-    from gazevla.data.store import EpisodeStore
-    from gazevla.envs.collect import fingerprint, resolve
+    from gazereg.data.store import EpisodeStore
+    from gazereg.envs.collect import fingerprint, resolve
 
     common = dict(
         tasks=("reach-v3",), episodes=1, image_size=32, workers=1, progress=False, gl_backend=gl_backend

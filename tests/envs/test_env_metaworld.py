@@ -11,7 +11,7 @@ pytestmark = pytest.mark.sim
 
 @pytest.fixture(scope="module")
 def env(gl_backend):
-    from gazevla.envs import MetaWorldEnv
+    from gazereg.envs import MetaWorldEnv
 
     e = MetaWorldEnv(
         "pick-place-v3", cameras=("corner2", "topview"), image_size=(64, 80), gl_backend=gl_backend
@@ -47,7 +47,7 @@ def test_state_is_hand_position_and_gripper_opening(env):
 def test_seeds_fix_setups_as_metaworld_mt1_does(env):
     import metaworld
 
-    from gazevla.envs import setup_of
+    from gazereg.envs import setup_of
 
     assert (
         setup_of(0) == (0, 0)
@@ -89,7 +89,7 @@ def test_same_seed_same_images(env):
 
 
 def test_expert_succeeds_and_the_env_says_so(gl_backend):
-    from gazevla.envs import Expert, MetaWorldEnv
+    from gazereg.envs import Expert, MetaWorldEnv
 
     env = MetaWorldEnv("reach-v3", cameras=(), max_steps=150, gl_backend=gl_backend)
     obs, info = env.reset(seed=0)
@@ -105,7 +105,7 @@ def test_expert_succeeds_and_the_env_says_so(gl_backend):
 
 
 def test_truncation_and_bad_actions(gl_backend):
-    from gazevla.envs import MetaWorldEnv
+    from gazereg.envs import MetaWorldEnv
 
     env = MetaWorldEnv("push-v3", cameras=(), max_steps=3, gl_backend=gl_backend)
     env.reset(seed=0)
@@ -124,10 +124,10 @@ def test_truncation_and_bad_actions(gl_backend):
 
 
 def test_gymnasium_registration(gl_backend):
-    import gazevla.envs.metaworld  # noqa: F401  (registers the id)
+    import gazereg.envs.metaworld.env  # noqa: F401  (registers the id)
 
     env = gym.make(
-        "gazevla/MetaWorld-v0", task="reach-v3", cameras=("corner2",), image_size=32, gl_backend=gl_backend
+        "gazereg/MetaWorld-v0", task="reach-v3", cameras=("corner2",), image_size=32, gl_backend=gl_backend
     )
     obs, _ = env.reset(seed=1)
     assert obs["images"]["corner2"].shape == (32, 32, 3)
@@ -136,8 +136,8 @@ def test_gymnasium_registration(gl_backend):
 
 
 def test_instructions_cover_the_tasks():
-    from gazevla.envs.instructions import INSTRUCTIONS, instruction_for
-    from gazevla.envs.metaworld import meta_world_tasks
+    from gazereg.envs.metaworld.env import meta_world_tasks
+    from gazereg.envs.metaworld.instructions import INSTRUCTIONS, instruction_for
 
     tasks = meta_world_tasks()
     assert set(tasks) <= set(INSTRUCTIONS)

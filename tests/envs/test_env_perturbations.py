@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gazevla.envs.perturbations import (
+from gazereg.envs.perturbations import (
     Lighting,
     Perturbation,
     SensorNoise,
@@ -57,7 +57,7 @@ def test_named_perturbations_and_composition():
 # ----- in the simulator -------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def env(gl_backend):
-    from gazevla.envs import MetaWorldEnv
+    from gazereg.envs import MetaWorldEnv
 
     e = MetaWorldEnv(
         "pick-place-v3", cameras=("corner2",), image_size=64, gl_backend=gl_backend, max_steps=120
@@ -103,7 +103,7 @@ def test_noise_is_seeded_per_episode(env):
 @pytest.mark.sim
 def test_perturbations_change_nothing_but_pixels(env):
     """An expert rollout under strong lighting + noise has the same states, actions, rewards and success."""
-    from gazevla.envs import Expert
+    from gazereg.envs import Expert
 
     def rollout(p):
         obs, info = env.reset(seed=4, options={"perturbation": p})

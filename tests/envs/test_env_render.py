@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gazevla.envs import render
-from gazevla.envs.render import RenderBackendError, decimate_mesh, default_mesh_cell, select_gl_backend
+from gazereg.envs import render
+from gazereg.envs.render import RenderBackendError, decimate_mesh, default_mesh_cell, select_gl_backend
 
 
 def test_user_choice_is_respected(monkeypatch):
@@ -67,7 +67,7 @@ def test_default_mesh_cell_stays_below_a_pixel():
 @pytest.mark.sim
 def test_simplified_render_matches_the_full_model(gl_backend):
     """The render-only copy with simplified meshes draws the same picture as the original meshes."""
-    from gazevla.envs import MetaWorldEnv
+    from gazereg.envs import MetaWorldEnv
 
     imgs = {}
     for cell in (0.01, None):

@@ -24,7 +24,7 @@ pytestmark = [
 
 @pytest.fixture(scope="module")
 def env():
-    from gazevla.envs.libero import LiberoEnv
+    from gazereg.envs.libero.env import LiberoEnv
 
     e = LiberoEnv("libero_spatial", cameras=("agentview", "wrist"), image_size=(96, 128), settle_steps=2)
     yield e
@@ -66,7 +66,7 @@ def test_seeds_select_task_and_init_state(env):
 
 
 def test_sensor_noise_and_lighting(env):
-    from gazevla.envs.perturbations import parse_perturbation
+    from gazereg.envs.perturbations import parse_perturbation
 
     clean, _ = env.reset(seed=3)
     noisy, _ = env.reset(seed=3, options={"perturbation": parse_perturbation("gaussian_noise:1")})
@@ -94,7 +94,7 @@ def test_privileged_facts_follow_the_bddl_goal(env):
 
 
 def test_hdf5_camera_names_are_aliases(env):
-    from gazevla.envs.libero import LiberoEnv
+    from gazereg.envs.libero.env import LiberoEnv
 
     e = LiberoEnv(
         "libero_spatial/0", cameras=("agentview_rgb", "eye_in_hand_rgb"), image_size=32, settle_steps=0
@@ -110,8 +110,8 @@ def test_hdf5_camera_names_are_aliases(env):
 def test_expert_grasps_and_places_the_bowl():
     """The scripted expert on one setup: contact, then a grasp, then LIBERO's success, with the same actions
     for the same (setup seed, noise seed)."""
-    from gazevla.envs.libero import LiberoEnv
-    from gazevla.envs.libero_expert import SpatialExpert
+    from gazereg.envs.libero.env import LiberoEnv
+    from gazereg.envs.libero.expert import SpatialExpert
 
     e = LiberoEnv("libero_spatial/0", cameras=(), max_steps=220)
     try:
@@ -139,7 +139,7 @@ def test_expert_grasps_and_places_the_bowl():
 
 @pytest.mark.parametrize("suite", ["libero_object", "libero_goal", "libero_10"])
 def test_every_suite_resets_and_steps(suite):
-    from gazevla.envs.libero import SUITE_MAX_STEPS, LiberoEnv
+    from gazereg.envs.libero.env import SUITE_MAX_STEPS, LiberoEnv
 
     e = LiberoEnv(f"{suite}/1", cameras=("agentview",), image_size=64, settle_steps=1)
     try:

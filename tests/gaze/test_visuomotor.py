@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gazevla.data.store import Episode
-from gazevla.gaze.sources import available_gaze_sources, make_gaze_source
+from gazereg.data.store import Episode
+from gazereg.gaze.sources import available_gaze_sources, make_gaze_source
 
 CAM = "cam"
 
@@ -148,9 +148,9 @@ def test_out_of_view_targets_are_invalid_and_missing_extras_are_named():
 def test_on_a_real_pick_place_demonstration():
     """In a collected Meta-World episode, the gaze is on the puck until the grasp and near the goal after."""
     pytest.importorskip("metaworld")
-    from gazevla.envs import MetaWorldEnv
-    from gazevla.envs.collect import rollout_expert
-    from gazevla.envs.render import select_gl_backend
+    from gazereg.envs import MetaWorldEnv
+    from gazereg.envs.collect import rollout_expert
+    from gazereg.envs.render import select_gl_backend
 
     env = MetaWorldEnv("pick-place-v3", cameras=("corner2",), image_size=96, gl_backend=select_gl_backend())
     ep, summary = rollout_expert(env, seed=1, max_steps=150)

@@ -8,8 +8,8 @@ import pickle
 import pytest
 import torch
 
-from gazevla.glc import GLC, GLCConfig
-from gazevla.glc.checkpoint import (
+from gazereg.gaze.glc import GLC, GLCConfig
+from gazereg.gaze.glc.checkpoint import (
     CheckpointMismatchError,
     load_glc,
     load_glc_checkpoint,

@@ -1,4 +1,4 @@
-"""`gazevla glc train` / `eval` end to end on a tiny synthetic store, and the data helpers they use."""
+"""`gazereg glc train` / `eval` end to end on a tiny synthetic store, and the data helpers they use."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from gazevla.glc.cli import main
-from gazevla.glc.data import (
+from gazereg.gaze.glc.cli import main
+from gazereg.gaze.glc.data import (
     StoreClipDataset,
     episode_gaze_points,
     fixation_mask,

@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F
 from glc_testutils import synthetic_state_dict
 
-from gazevla.glc import GLC, GLCConfig
+from gazereg.gaze.glc import GLC, GLCConfig
 
 
 def test_matches_official_output(synthetic_io):

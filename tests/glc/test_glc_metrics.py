@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from gazevla.glc.metrics import (
+from gazereg.gaze.glc.metrics import (
     THRESHOLDS,
     auc_scores,
     center_prior_maps,
@@ -119,7 +119,7 @@ def test_baselines_give_a_floor():
 
 
 def test_perfect_prediction_scores_high():
-    from gazevla.glc.train import gaze_target_maps
+    from gazereg.training.glc import gaze_target_maps
 
     g = torch.Generator().manual_seed(1)
     gaze = 0.2 + 0.6 * torch.rand(3, 4, 2, generator=g)

@@ -7,8 +7,8 @@ import dataclasses
 import pytest
 import torch
 
-from gazevla.glc import GLC, GLCConfig, frame_softmax, prepare_clip
-from gazevla.glc.mvit import GLC_MASK_VALUE, glc_attention_mask
+from gazereg.gaze.glc import GLC, GLCConfig, frame_softmax, prepare_clip
+from gazereg.gaze.glc.mvit import GLC_MASK_VALUE, glc_attention_mask
 
 
 @pytest.fixture(scope="module")

@@ -9,12 +9,9 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from gazevla.data.store import EpisodeStore
-from gazevla.gaze.priors import PriorsConfig, make_priors
-from gazevla.gaze.sources import make_gaze_source
-from gazevla.gaze.sources.glc import GLCGaze, to_frame
-from gazevla.glc.checkpoint import save_glc
-from gazevla.glc.data import (
+from gazereg.data.store import EpisodeStore
+from gazereg.gaze.glc.checkpoint import save_glc
+from gazereg.gaze.glc.data import (
     average_anchors,
     clip_indices,
     crop_box,
@@ -22,7 +19,10 @@ from gazevla.glc.data import (
     preprocess_frames,
     synthetic_gaze_episode,
 )
-from gazevla.glc.model import frame_softmax
+from gazereg.gaze.glc.model import frame_softmax
+from gazereg.gaze.priors import PriorsConfig, make_priors
+from gazereg.gaze.sources import make_gaze_source
+from gazereg.gaze.sources.glc import GLCGaze, to_frame
 
 
 @pytest.fixture(scope="module")

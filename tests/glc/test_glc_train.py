@@ -9,8 +9,8 @@ import math
 import pytest
 import torch
 
-from gazevla.glc import GLC, GLCConfig
-from gazevla.glc.train import (
+from gazereg.gaze.glc import GLC, GLCConfig
+from gazereg.training.glc import (
     GLCTrainConfig,
     evaluate_loss,
     gaze_target_maps,

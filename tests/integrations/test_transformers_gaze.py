@@ -12,14 +12,14 @@ import torch
 
 transformers = pytest.importorskip("transformers", reason="the hf extra (transformers) is not installed")
 
-from gazevla.integrations.tiny import tiny_batch, tiny_model  # noqa: E402
-from gazevla.integrations.transformers import (  # noqa: E402
+from gazereg.integrations.tiny import tiny_batch, tiny_model  # noqa: E402
+from gazereg.integrations.transformers import (  # noqa: E402
     GazeRegularizer,
     camera_geometry,
     detect_family,
     gaze_attention_name,
 )
-from gazevla.patches import PatchGeometry  # noqa: E402
+from gazereg.patches import PatchGeometry  # noqa: E402
 
 CLASSES = {
     "pi0": "PI0ForConditionalGeneration",

@@ -4,12 +4,12 @@ import numpy as np
 import pytest
 import torch
 
-from gazevla.attention.probe import AttentionProbe
-from gazevla.losses import gaze_loss
-from gazevla.policies import available_policies, load_policy, make_policy
-from gazevla.policies.vla import VLAConfig, VLAPolicy
-from gazevla.policies.vla.configuration_vla import paper, tiny
-from gazevla.policies.vla.processor_vla import Tokenizer, random_shift, to_input_images
+from gazereg.attention.probe import AttentionProbe
+from gazereg.losses import gaze_loss
+from gazereg.policies import available_policies, load_policy, make_policy
+from gazereg.policies.vla import VLAConfig, VLAPolicy
+from gazereg.policies.vla.configuration_vla import paper, tiny
+from gazereg.policies.vla.processor_vla import Tokenizer, random_shift, to_input_images
 
 INSTR = ["reach the bright square", "press the button"]
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gazevla.data.store import Episode, EpisodeStore
+from gazereg.data.store import Episode, EpisodeStore
 
 TASKS = {"reach": "reach the bright square", "press": "press the button under the square"}
 

@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 import torch
 
-from gazevla.data.dataset import EpisodeDataset, StepBatchSampler, describe_store, split_episodes
-from gazevla.patches import PatchGeometry, patch_distribution
-from gazevla.policies.vla.processor_vla import Tokenizer
+from gazereg.data.dataset import EpisodeDataset, StepBatchSampler, describe_store, split_episodes
+from gazereg.patches import PatchGeometry, patch_distribution
+from gazereg.policies.vla.processor_vla import Tokenizer
 
 
 def test_describe_and_split(tiny_store):

@@ -10,10 +10,10 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from gazevla.policies import load_policy
-from gazevla.train import GazeConfig, OptimConfig, main, smoke, train
-from gazevla.training.checkpoint import latest_checkpoint, list_checkpoints
-from gazevla.training.logger import read_metrics
+from gazereg.policies import load_policy
+from gazereg.training.checkpoint import latest_checkpoint, list_checkpoints
+from gazereg.training.logger import read_metrics
+from gazereg.training.loop import GazeConfig, OptimConfig, main, smoke, train
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -165,7 +165,7 @@ def test_two_process_cpu_ddp(tiny_store, tmp_path):
         "--main_process_port",
         str(_free_port()),
         "-m",
-        "gazevla.train",
+        "gazereg.training.loop",
         "--preset",
         "smoke",
         "--data.store",

@@ -1,10 +1,10 @@
-"""The shared subcommand dispatcher and the three commands built on it (`gazevla`, `gazevla import`, `viz`)."""
+"""The shared subcommand dispatcher and the three commands built on it (`gazereg`, `gazereg import`, `viz`)."""
 
 import sys
 
 import pytest
 
-from gazevla.utils.subcommands import Subcommands, load_entry
+from gazereg.runtime.subcommands import Subcommands, load_entry
 
 SEEN: list[list[str]] = []
 
@@ -83,10 +83,10 @@ def test_argv_defaults_to_sys_argv(monkeypatch, capsys):
     assert "things:" in capsys.readouterr().out
 
 
-def test_tables_of_the_gazevla_commands_name_real_functions():
-    from gazevla.cli import COMMANDS as top
-    from gazevla.data.importers import COMMANDS as imports
-    from gazevla.viz.cli import COMMANDS as viz
+def test_tables_of_the_gazereg_commands_name_real_functions():
+    from gazereg.cli import COMMANDS as top
+    from gazereg.data.importers import COMMANDS as imports
+    from gazereg.viz.cli import COMMANDS as viz
 
     # every top-level command is a module's main (not imported here: they load torch and the simulators)
     assert all(target.endswith(":main") for target, _ in top.commands.values())
@@ -95,20 +95,20 @@ def test_tables_of_the_gazevla_commands_name_real_functions():
             assert callable(load_entry(target)), target
 
 
-def test_gazevla_import_and_viz_usage(capsys):
-    from gazevla.data import importers
-    from gazevla.viz import cli as viz
+def test_gazereg_import_and_viz_usage(capsys):
+    from gazereg.data import importers
+    from gazereg.viz import cli as viz
 
     assert viz.main(["--help"]) == 0
     assert capsys.readouterr().out == (
-        "usage: gazevla viz <figure> [options]\n\nfigures:\n"
+        "usage: gazereg viz <figure> [options]\n\nfigures:\n"
         "  strip    frames of an episode with its gaze heatmap and point\n"
     )
     assert viz.main(["nope"]) == 2
-    assert "gazevla viz: unknown figure 'nope'" in capsys.readouterr().err
+    assert "gazereg viz: unknown figure 'nope'" in capsys.readouterr().err
     assert importers.main([]) == 0
     out = capsys.readouterr().out
-    assert out.startswith("usage: gazevla import <lerobot|hdf5|export-priors> [options]\n\n  lerobot ")
-    assert "gazevla import export-priors --store STORE" in out
+    assert out.startswith("usage: gazereg import <lerobot|hdf5|export-priors> [options]\n\n  lerobot ")
+    assert "gazereg import export-priors --store STORE" in out
     assert importers.main(["nope"]) == 2
-    assert "gazevla import: unknown source 'nope'" in capsys.readouterr().err
+    assert "gazereg import: unknown source 'nope'" in capsys.readouterr().err

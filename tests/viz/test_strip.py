@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gazevla.data.store import Episode, EpisodeStore
+from gazereg.data.store import Episode, EpisodeStore
 
 pytest.importorskip("matplotlib")
 
@@ -45,8 +45,8 @@ def _episode(T: int = 40, cam: str = "corner2") -> Episode:
 
 
 def test_draw_strip_writes_a_png(tmp_path):
-    from gazevla.gaze.sources import make_gaze_source
-    from gazevla.viz.strip import draw_strip, pick_frames
+    from gazereg.gaze.sources import make_gaze_source
+    from gazereg.viz.strip import draw_strip, pick_frames
 
     assert pick_frames(40, 8)[0] == 0 and pick_frames(40, 8)[-1] == 39 and len(pick_frames(40, 8)) == 8
     assert pick_frames(3, 8) == [0, 1, 2]
@@ -78,7 +78,7 @@ def test_draw_strip_writes_a_png(tmp_path):
 def test_command_line_strip_from_source_and_prior(tmp_path, capsys):
     import matplotlib.image as mpimg
 
-    from gazevla.viz.cli import main
+    from gazereg.viz.cli import main
 
     store = EpisodeStore(tmp_path / "store", create=True)
     store.write(_episode(), index=0)

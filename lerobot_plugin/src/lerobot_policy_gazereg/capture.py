@@ -1,0 +1,175 @@
+"""Differentiable capture of SmolVLA's action-expert attention to one camera's image tokens.
+
+SmolVLA (`SmolVLMWithExpertModel`) always computes attention with its own `eager_attention_forward`, which builds
+the probabilities and returns only the output. Inside `SmolVLACapture.capture()` four methods of the model
+instance are wrapped (instance attributes shadowing the class methods, removed on exit; nothing is copied):
+
+- `embed_image`: counts the image tokens each camera produces (prefix layout);
+- `forward_attn_layer` / `forward_cross_attn_layer`: note the layer index and where the expert's queries are
+  (joint self-attention: the last `suffix_len` query rows; cross-attention: the expert's own call);
+- `eager_attention_forward`: runs the original (outputs bit-identical) and hands the expert's query rows, the
+  keys and the mask to a `gazereg.attention.AttentionProbe`, which recomputes softmax(q k^T / sqrt(d) + mask)
+  over all keys, exactly as the eager function does, and keeps the camera's image-token columns.
+
+Prefix layout (lerobot 0.6.1 `VLAFlowMatching.embed_prefix`): for each camera in order, [2 special tokens if
+add_image_special_tokens] + its image tokens + [1 special token], then language, then state.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+
+from gazereg.attention.probe import AttentionProbe, ProbeSpec
+
+
+@dataclass
+class _State:
+    camera_index: int
+    layers: tuple[int, ...]
+    special: bool
+    image_tokens: list[int] = field(default_factory=list)  # tokens per embed_image call, in camera order
+    layer: int | None = None
+    expert_call: int | None = None  # which eager call of the current layer carries the expert's queries
+    suffix_len: int = 0
+    calls: int = 0
+    probe: AttentionProbe | None = None
+    keys: Tensor | None = None
+
+
+class SmolVLACapture:
+    """Capture of `VLAFlowMatching`'s expert-to-image attention on chosen VLM layer indices.
+
+    model: the policy's `VLAFlowMatching` (`policy.model`).
+    layers: VLM layer indices (0..num_vlm_layers-1) at which the expert attends; None = the second half of
+        the layers that have an expert layer.
+    """
+
+    def __init__(self, model: nn.Module, layers: list[int] | tuple[int, ...] | None = None):
+        self.model = model
+        self.vwe = model.vlm_with_expert
+        n = self.vwe.num_vlm_layers
+        multiple = n // self.vwe.num_expert_layers
+        self.expert_layers = [i for i in range(n) if not (multiple > 0 and i > 0 and i % multiple != 0)]
+        if layers is None:
+            layers = self.expert_layers[len(self.expert_layers) // 2 :]
+        self.layers = tuple(int(i) for i in layers)
+        bad = [i for i in self.layers if i not in self.expert_layers]
+        if bad or not self.layers:
+            raise ValueError(
+                f"gaze layers {list(self.layers)} invalid: the action expert attends at VLM layers {self.expert_layers}"
+            )
+        self.state: _State | None = None
+
+    # ----- results ----------------------------------------------------------------------------------------
+    @property
+    def image_tokens(self) -> list[int]:
+        """Image tokens of each camera in the last captured forward."""
+        return [] if self.state is None else list(self.state.image_tokens)
+
+    def attention(self, eps: float = 1e-12) -> Tensor:
+        """(B, n_image_tokens) attention of the action tokens to the camera's image tokens, averaged over heads,
+        action tokens and layers and renormalised over the camera's tokens (row-major over its token grid)."""
+        if self.state is None or self.state.probe is None:
+            raise RuntimeError("no attention captured: run the policy's forward inside capture() first")
+        return self.state.probe.distribution(eps)
+
+    def patch_mass(self) -> Tensor:
+        """(B,) attention mass the action tokens put on the camera's image tokens, before renormalisation."""
+        return self.state.probe.patch_mass()
+
+    # ----- capture ------------------------------------------------------------------------------------------
+    @contextlib.contextmanager
+    def capture(self, camera_index: int) -> Iterator[SmolVLACapture]:
+        """Capture during the forwards run inside; `camera_index` is the camera's position among the images the
+        policy embeds (its order in `config.image_features` among those present in the batch)."""
+        vwe = self.vwe
+        state = _State(
+            camera_index=camera_index,
+            layers=self.layers,
+            special=bool(self.model.config.add_image_special_tokens),
+        )
+        self.state = state
+        orig_embed = vwe.embed_image
+        orig_attn_layer = vwe.forward_attn_layer
+        orig_cross_layer = vwe.forward_cross_attn_layer
+        orig_eager = vwe.eager_attention_forward
+
+        def embed_image(image: Tensor) -> Tensor:
+            out = orig_embed(image)
+            state.image_tokens.append(int(out.shape[1]))
+            return out
+
+        def layer_wrapper(orig: Any, cross: bool) -> Any:
+            def run(model_layers, inputs_embeds, layer_idx, *args: Any, **kwargs: Any):
+                has_expert = len(inputs_embeds) > 1 and inputs_embeds[1] is not None
+                has_expert = has_expert and model_layers[1][layer_idx] is not None
+                state.layer, state.calls = layer_idx, 0
+                state.suffix_len = inputs_embeds[1].shape[1] if has_expert else 0
+                if not has_expert or layer_idx not in state.layers:
+                    state.expert_call = None
+                elif cross:
+                    past = kwargs.get("past_key_values", args[5] if len(args) > 5 else None)
+                    state.expert_call = 1 if (len(inputs_embeds) == 2 and not past) else 0
+                else:
+                    state.expert_call = 0
+                try:
+                    return orig(model_layers, inputs_embeds, layer_idx, *args, **kwargs)
+                finally:
+                    state.layer = state.expert_call = None
+
+            return run
+
+        def eager(attention_mask, batch_size, head_dim, query_states, key_states, value_states):
+            out = orig_eager(attention_mask, batch_size, head_dim, query_states, key_states, value_states)
+            call = state.calls
+            state.calls += 1
+            if state.expert_call is not None and call == state.expert_call:
+                self._record(state, attention_mask, head_dim, query_states, key_states)
+            return out
+
+        vwe.embed_image = embed_image
+        vwe.forward_attn_layer = layer_wrapper(orig_attn_layer, cross=False)
+        vwe.forward_cross_attn_layer = layer_wrapper(orig_cross_layer, cross=True)
+        vwe.eager_attention_forward = eager
+        try:
+            yield self
+        finally:
+            for name in (
+                "embed_image",
+                "forward_attn_layer",
+                "forward_cross_attn_layer",
+                "eager_attention_forward",
+            ):
+                vwe.__dict__.pop(name, None)
+
+    def _keys(self, state: _State, n_keys: int, device: torch.device) -> Tensor:
+        counts = state.image_tokens
+        c = state.camera_index
+        if c >= len(counts):
+            raise RuntimeError(f"camera {c} was not embedded: the prefix holds {len(counts)} image(s)")
+        s0, s1 = (2, 1) if state.special else (0, 0)
+        start = sum(s0 + n + s1 for n in counts[:c]) + s0
+        if start + counts[c] > n_keys:
+            raise RuntimeError(
+                f"image tokens {start}..{start + counts[c]} exceed the {n_keys} attention keys"
+            )
+        return torch.arange(start, start + counts[c], device=device)
+
+    def _record(self, state: _State, mask: Tensor, head_dim: int, q: Tensor, k: Tensor) -> None:
+        # q (B, Lq, H, D), k (B, S, Hkv, D), mask (B, Lq, S) bool (True = attend)
+        rows = slice(q.shape[1] - state.suffix_len, q.shape[1])
+        qh = q[:, rows].transpose(1, 2)
+        kh = k.transpose(1, 2)
+        m = mask[:, rows][:, None]
+        if state.probe is None:
+            state.keys = self._keys(state, k.shape[1], k.device)
+            state.probe = AttentionProbe(
+                None, ProbeSpec(queries=slice(None), keys=state.keys, layers=state.layers)
+            )
+        state.probe.record(state.layer, qh, kh, m, head_dim**-0.5)

@@ -1,0 +1,142 @@
+"""SmolVLA with gaze regularization: SmolVLAPolicy unchanged (same modules, same state dict, same inference),
+plus, in training, weight * KL(gaze || attention of the action expert's tokens to one camera's image tokens).
+
+The loss dict gains `loss/action` (SmolVLA's own loss), `loss/gaze_kl` (the unweighted divergence),
+`gaze/weight`, `gaze/valid_frac` and `gaze/patch_mass`; lerobot-train logs every scalar of it.
+
+Where the gaze comes from, per training batch:
+1. the batch's `gaze_key` column (kept through the pre-processor by this plugin's processor factory);
+2. otherwise, when the pre-processor dropped it (a processor loaded from a checkpoint uses LeRobot's default
+   converters, which keep only observation.*, action, *_is_pad and a few metadata keys), the same column read
+   once from the data set's parquet files (the policy receives the data set metadata) and looked up by the
+   batch's `index`.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import torch
+from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
+from torch import Tensor
+
+from gazereg.losses import gaze_kl, gaze_loss
+
+from .capture import SmolVLACapture
+from .configuration_smolvla_gaze import SmolVLAGazeConfig
+from .gaze_targets import gaze_distribution, smolvla_geometry
+
+log = logging.getLogger(__name__)
+
+
+def _load_gaze_column(root: Path, key: str) -> tuple[Tensor, Tensor] | None:
+    """(index (N,) long, values (N, ...) float32) of a LeRobot v3 data set's column, or None if absent."""
+    import pyarrow.parquet as pq
+
+    files = sorted((Path(root) / "data").glob("*/*.parquet"))
+    idx, vals = [], []
+    for f in files:
+        names = pq.read_schema(f).names
+        if key not in names or "index" not in names:
+            return None
+        t = pq.read_table(f, columns=["index", key])
+        idx.append(torch.as_tensor(t.column("index").to_numpy()))
+        vals.append(torch.as_tensor(list(t.column(key).to_pylist()), dtype=torch.float32))
+    if not files:
+        return None
+    return torch.cat(idx).long(), torch.cat(vals)
+
+
+class SmolVLAGazePolicy(SmolVLAPolicy):
+    config_class = SmolVLAGazeConfig
+    name = "smolvla_gaze"
+
+    def __init__(self, config: SmolVLAGazeConfig, **kwargs: Any):
+        super().__init__(config, **kwargs)
+        self.gaze_capture = SmolVLACapture(self.model, config.gaze_layers)
+        meta = kwargs.get("dataset_meta")
+        self._gaze_root = getattr(meta, "root", None)
+        self._gaze_table: tuple[Tensor, Tensor] | None = None
+        self._gaze_geometry = None
+
+    # ----- gaze targets --------------------------------------------------------------------------------------
+    def _geometry(self):
+        if self._gaze_geometry is None:
+            cfg = self.config
+            cam = cfg.gaze_camera_key()
+            shape = cfg.image_features[cam].shape  # (C, H, W)
+            src_hw = (int(shape[-2]), int(shape[-1]))
+            vcfg = self.model.vlm_with_expert.config
+            patch = vcfg.vision_config.patch_size
+            geom, flip = smolvla_geometry(src_hw, cfg.resize_imgs_with_padding, patch, vcfg.scale_factor)
+            self._gaze_geometry = (geom, flip, src_hw)
+        return self._gaze_geometry
+
+    def _gaze_column(self, batch: dict[str, Any]) -> Tensor:
+        key = self.config.gaze_key
+        if key in batch:
+            return batch[key]
+        if "index" in batch and self._gaze_root is not None:
+            if self._gaze_table is None:
+                table = _load_gaze_column(self._gaze_root, key)
+                if table is None:
+                    raise KeyError(f"the data set at {self._gaze_root} has no column {key!r} (gaze_key)")
+                log.info("gaze: column %r read from %s (%d frames)", key, self._gaze_root, len(table[0]))
+                order = torch.argsort(table[0])
+                self._gaze_table = (table[0][order], table[1][order])
+            index, values = self._gaze_table
+            want = torch.as_tensor(batch["index"]).flatten().long().cpu()
+            pos = torch.searchsorted(index, want).clamp_max(len(index) - 1)
+            if not torch.equal(index[pos], want):
+                raise KeyError(f"frames {want[index[pos] != want].tolist()[:5]} have no {key!r} value")
+            return values[pos]
+        raise KeyError(
+            f"the training batch has no gaze column {key!r} (keys: {sorted(batch)}); store gaze in the data set "
+            "under gaze.* and train with --policy.type=smolvla_gaze (its pre-processor keeps the column)"
+        )
+
+    # ----- training ------------------------------------------------------------------------------------------
+    def forward(
+        self, batch: dict[str, Tensor], noise=None, time=None, reduction: str = "mean"
+    ) -> tuple[Tensor, dict[str, Any]]:
+        cfg = self.config
+        if not self.training or cfg.gaze_weight == 0:
+            return super().forward(batch, noise=noise, time=time, reduction=reduction)
+        cam = cfg.gaze_camera_key()
+        present = [k for k in cfg.image_features if k in batch]
+        if cam not in present:
+            raise KeyError(f"gaze camera {cam!r} is missing from the batch (images present: {present})")
+        column = self._gaze_column(batch)
+        with self.gaze_capture.capture(present.index(cam)):
+            loss, loss_dict = super().forward(batch, noise=noise, time=time, reduction=reduction)
+        geom, flip, src_hw = self._geometry()
+        n_tokens = self.gaze_capture.image_tokens[present.index(cam)]
+        if n_tokens != geom.n_patches:
+            raise ValueError(
+                f"camera {cam!r} produced {n_tokens} image tokens but its geometry {geom.grid_hw} "
+                f"(input {geom.input_hw}, patch {geom.patch_size} px, pixel shuffle {geom.pixel_shuffle}) has "
+                f"{geom.n_patches}: the camera/grid mapping does not match the model"
+            )
+        attention = self.gaze_capture.attention()
+        gaze, valid = gaze_distribution(column, geom, flip, cfg.gaze_sigma, src_hw)
+        gaze, valid = gaze.to(attention.device), valid.to(attention.device)
+        w = float(cfg.gaze_weight)
+        if reduction == "none":
+            per_sample = gaze_kl(gaze, attention, kind=cfg.gaze_divergence) * valid
+            kl = per_sample.sum() / valid.sum().clamp_min(1)
+            total = loss + w * per_sample
+        else:
+            kl, _ = gaze_loss(gaze, attention, valid, kind=cfg.gaze_divergence)
+            total = loss + w * kl
+        loss_dict.update(
+            {
+                "loss/action": float(loss.detach().mean()),
+                "loss/gaze_kl": float(kl.detach()),
+                "gaze/weight": w,
+                "gaze/valid_frac": float(valid.float().mean()),
+                "gaze/patch_mass": float(self.gaze_capture.patch_mass().mean()),
+            }
+        )
+        return total, loss_dict

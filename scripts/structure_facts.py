@@ -1,0 +1,221 @@
+"""Facts about the package's structure: import loops, imports that run back up the layers, the largest files
+and the longest functions, and imports of the package's own modules hidden inside functions.
+
+    python scripts/structure_facts.py                    # summary of src/gazereg
+    python scripts/structure_facts.py --src src/OTHER    # another package (layers checked only for gazereg)
+    python scripts/structure_facts.py --json
+
+Every import counts, at module level or inside a function: a lazy import hides a loop, it does not remove
+it. `LAYERS` orders the packages from the core up; a module may import its own layer or lower ones.
+tests/test_structure.py asserts the facts this prints.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import json
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+
+LAYERS: tuple[tuple[str, ...], ...] = (
+    ("runtime",),
+    ("losses", "patches", "metrics", "attention"),
+    ("gaze",),
+    ("data",),
+    ("envs",),
+    ("policies",),
+    ("training",),
+    ("evaluation",),
+    ("integrations", "viz"),
+    ("report",),
+    ("experiment",),
+    ("cli", "__init__"),
+)
+"""the data flow's order, lowest first: demos -> store -> priors -> patches -> train -> eval -> report"""
+
+MAX_FILE_LINES = 400
+MAX_FUNCTION_LINES = 60
+
+
+def module_name(path: Path, src: Path) -> str:
+    parts = list(path.relative_to(src.parent).with_suffix("").parts)
+    if parts[-1] == "__init__" and len(parts) > 1:
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def imports_of(tree: ast.AST, module: str, is_package: bool, package: str) -> list[tuple[str, bool]]:
+    """(imported module, inside a function?) for every import of the package's own modules."""
+    found: list[tuple[str, bool]] = []
+
+    def visit(node: ast.AST, in_function: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            inner = in_function or isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef)
+            if isinstance(child, ast.Import):
+                found.extend((a.name, inner) for a in child.names if a.name.split(".")[0] == package)
+            elif isinstance(child, ast.ImportFrom):
+                base = child.module or ""
+                if child.level:
+                    anchor = module.split(".")
+                    anchor = anchor if is_package else anchor[:-1]
+                    anchor = anchor[: len(anchor) - (child.level - 1)]
+                    base = ".".join([*anchor, base] if base else anchor)
+                if base.split(".")[0] == package:
+                    found.extend((f"{base}.{a.name}", inner) for a in child.names)
+            visit(child, inner)
+
+    visit(tree, False)
+    return found
+
+
+def resolve(name: str, modules: set[str]) -> str | None:
+    """The longest known module that `name` (a module or a name inside one) refers to."""
+    while name and name not in modules:
+        name = name.rpartition(".")[0]
+    return name or None
+
+
+def loops(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected groups of more than one module (Tarjan's algorithm)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+
+    def strong(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                strong(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                out.append(sorted(group))
+
+    for v in sorted(graph):
+        if v not in index:
+            strong(v)
+    return out
+
+
+def top_of(module: str) -> str:
+    """The package's first-level part a module belongs to (`gazereg.gaze.priors` -> `gaze`)."""
+    return module.split(".")[1] if "." in module else "__init__"
+
+
+def layer_of(module: str) -> int | None:
+    top = top_of(module)
+    for i, names in enumerate(LAYERS):
+        if top in names:
+            return i
+    return None
+
+
+def function_lengths(tree: ast.AST, module: str) -> list[tuple[str, int]]:
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+            out.append((f"{module}.{node.name}", node.end_lineno - node.lineno + 1))
+    return out
+
+
+def analyse(src: Path, top: int = 8) -> dict[str, Any]:
+    package = src.name
+    files = sorted(src.rglob("*.py"))
+    names = {module_name(f, src): f for f in files}
+    graph: dict[str, set[str]] = {m: set() for m in names}
+    inner_imports = 0
+    lengths: list[tuple[str, int]] = []
+    sizes: list[tuple[str, int]] = []
+    for mod, path in names.items():
+        text = path.read_text()
+        tree = ast.parse(text)
+        sizes.append((str(path.relative_to(src.parent)), len(text.splitlines())))
+        lengths.extend(function_lengths(tree, mod))
+        for target, inner in imports_of(tree, mod, path.name == "__init__.py", package):
+            dep = resolve(target, set(names))
+            if dep is None or dep == mod:
+                continue
+            graph[mod].add(dep)
+            inner_imports += inner
+    back = []
+    if package == "gazereg":
+        for mod, deps in graph.items():
+            for dep in deps:
+                a, b = layer_of(mod), layer_of(dep)
+                if a is not None and b is not None and b > a:
+                    back.append(f"{mod} -> {dep}")
+    sizes.sort(key=lambda x: -x[1])
+    lengths.sort(key=lambda x: -x[1])
+    packages: dict[str, set[str]] = {}
+    for mod, deps in graph.items():
+        for dep in deps:
+            a, b = top_of(mod), top_of(dep)
+            if a != b:
+                packages.setdefault(a, set()).add(b)
+    return {
+        "modules": len(names),
+        "package_loops": loops(packages),
+        "lines": sum(n for _, n in sizes),
+        "loops": loops(graph),
+        "back_arrows": sorted(back),
+        "unlayered": sorted(m for m in names if package == "gazereg" and layer_of(m) is None),
+        "function_level_imports": inner_imports,
+        "max_file_lines": MAX_FILE_LINES,
+        "max_function_lines": MAX_FUNCTION_LINES,
+        "largest_files": sizes[:top],
+        "long_files": [s for s in sizes if s[1] > MAX_FILE_LINES],
+        "longest_functions": lengths[:top],
+        "long_functions": [f for f in lengths if f[1] > MAX_FUNCTION_LINES],
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--src", type=Path, default=ROOT / "src" / "gazereg")
+    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--top", type=int, default=8)
+    args = ap.parse_args(argv)
+    facts = analyse(args.src, top=args.top)
+    if args.json:
+        print(json.dumps(facts, indent=2))
+        return 0
+    print(f"modules: {facts['modules']}, lines: {facts['lines']}")
+    print(f"import loops (groups of modules that import each other): {len(facts['loops'])}")
+    for group in facts["loops"]:
+        print(f"  - {' <-> '.join(group)}")
+    print(f"loops between the package's first-level parts: {len(facts['package_loops'])}")
+    for group in facts["package_loops"]:
+        print(f"  - {' <-> '.join(group)}")
+    print(f"imports up the layers: {len(facts['back_arrows'])}")
+    for arrow in facts["back_arrows"]:
+        print(f"  - {arrow}")
+    if facts["unlayered"]:
+        print(f"modules in no layer: {', '.join(facts['unlayered'])}")
+    print(f"imports of the package's own modules inside functions: {facts['function_level_imports']}")
+    print(f"files over {facts['max_file_lines']} lines: {len(facts['long_files'])}; largest:")
+    for path, n in facts["largest_files"]:
+        print(f"  {n:5d}  {path}")
+    print(f"functions over {facts['max_function_lines']} lines: {len(facts['long_functions'])}; longest:")
+    for name, n in facts["longest_functions"]:
+        print(f"  {n:5d}  {name}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

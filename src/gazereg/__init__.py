@@ -1,0 +1,36 @@
+"""gazereg: gaze-regularized Vision-Language-Action policies.
+
+The core library (no simulator, no model zoo) is importable from here; names load on first use so that
+`import gazereg` stays cheap:
+
+>>> from gazereg import heatmaps_from_points, aggregate, PatchGeometry, patch_distribution, gaze_loss, AttentionProbe
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+__version__ = "0.1.0"
+
+_EXPORTS = {
+    "heatmaps_from_points": "gazereg.gaze.heatmaps",
+    "AggregationConfig": "gazereg.gaze.aggregation",
+    "aggregate": "gazereg.gaze.aggregation",
+    "PatchGeometry": "gazereg.patches",
+    "patch_distribution": "gazereg.patches",
+    "GazeLossConfig": "gazereg.losses",
+    "WeightSchedule": "gazereg.losses",
+    "gaze_kl": "gazereg.losses",
+    "gaze_loss": "gazereg.losses",
+    "AttentionProbe": "gazereg.attention.probe",
+    "ProbeSpec": "gazereg.attention.probe",
+}
+
+__all__ = [*_EXPORTS, "__version__"]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'gazereg' has no attribute {name!r}")

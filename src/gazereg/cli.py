@@ -1,0 +1,61 @@
+"""The `gazereg` command: a thin dispatcher over library entry points.
+
+Each subcommand lives in its own module as `main(argv: list[str]) -> int` and is imported only when it runs,
+so `gazereg --help` stays fast and heavy optional dependencies load only where they are needed.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from gazereg.runtime.subcommands import Subcommands
+
+# name -> ("module:function", one-line help). Only subcommands whose module is installed are offered.
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "collect": ("gazereg.envs.collect:main", "roll out scripted experts in simulation into an episode store"),
+    "priors": (
+        "gazereg.gaze.priors:main",
+        "make per-frame gaze priors for an episode store from a gaze source",
+    ),
+    "train": ("gazereg.training.loop:main", "train a policy, with or without the gaze regularizer"),
+    "eval": (
+        "gazereg.evaluation.rollout:main",
+        "evaluate a checkpoint in simulation (clean, lighting, sensor noise)",
+    ),
+    "experiment": (
+        "gazereg.experiment:main",
+        "the end-to-end pipeline: demos, priors, training, evaluation, report",
+    ),
+    "compare": (
+        "gazereg.report.compare:main",
+        "compare two experiment runs on the setups both evaluated (paired tests per arm and condition)",
+    ),
+    "glc": ("gazereg.gaze.glc.cli:main", "train / evaluate the GLC video gaze estimator"),
+    "import": (
+        "gazereg.data.importers:main",
+        "import LeRobot v3 or HDF5 demonstrations into an episode store",
+    ),
+    "viz": ("gazereg.viz.cli:main", "draw episodes with their gaze and attention"),
+}
+
+COMMANDS = Subcommands(
+    prog="gazereg",
+    synopsis="<command> [--preset NAME] [--dotted.option=value ...]",
+    commands=SUBCOMMANDS,
+    heading="commands:",
+    footer="Run `gazereg <command> --help` for a command's options.",
+)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["--version"]:
+        from gazereg import __version__
+
+        print(__version__)
+        return 0
+    return COMMANDS.main(argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

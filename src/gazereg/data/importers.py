@@ -1,0 +1,194 @@
+"""`gazereg import`: demonstrations from other formats into an episode store, and priors back out.
+
+    gazereg import lerobot --root PATH --out STORE [--gaze-camera front] [--cameras front wrist]
+    gazereg import hdf5 --file PATH [PATH ...] --out STORE [--rotate180 auto|none|all|cam1,cam2]
+    gazereg import export-priors --store STORE --prior NAME --out DIR
+
+`lerobot` reads a LeRobot v3.0 data set (gazereg.data.formats.lerobot_v3), `hdf5` a LIBERO / robomimic HDF5 file
+(gazereg.data.formats.hdf5), `export-priors` writes a store's priors as a LeRobot sidecar keyed by episode_index and
+frame_index (DIR/priors.parquet + DIR/priors.json; see `export_priors_lerobot` in gazereg.data.formats.lerobot_v3.export).
+Run a subcommand with --help for its options.
+
+Imports stream one episode at a time and resume: the store index of an episode is fixed by its source
+(LeRobot episode_index; HDF5 demo number), episodes already in the store are skipped after checking that they
+came from the same source with the same settings, and every episode is written atomically, so an error or a
+kill mid-episode leaves no partial episode behind.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from gazereg.data.store import Episode, EpisodeStore
+from gazereg.runtime.subcommands import Entry, Subcommands, run_entry
+
+log = logging.getLogger(__name__)
+
+
+class DataImportError(ValueError):
+    """A source file is corrupt, inconsistent or not what the importer was asked to read.
+
+    The message names the file and the episode."""
+
+
+@dataclass
+class SourceEpisode:
+    """One episode to import: its store index, who it is (compared on resume), and how to load it."""
+
+    index: int
+    identity: dict[str, Any]  # JSON-able; stored as meta["source"]
+    load: Callable[[], Episode]
+    length: int | None = None  # frames, if known without loading (for the progress bar)
+
+
+def rotated_cameras(
+    spec: str, cameras: list[str], auto: list[str] | None = None, where: str = ""
+) -> list[str]:
+    """Cameras to turn by 180 degrees from a `rotate180` option: none | all | auto | comma-separated names.
+
+    `auto` means the importer's own default (`auto`; none where the importer has no default)."""
+    spec = spec.strip()
+    if spec == "auto":
+        return list(auto or [])
+    if spec in ("none", ""):
+        return []
+    if spec == "all":
+        return list(cameras)
+    names = [c.strip() for c in spec.split(",") if c.strip()]
+    unknown = [c for c in names if c not in cameras]
+    if unknown:
+        raise DataImportError(f"rotate180 names camera(s) {unknown} that are not imported{where} ({cameras})")
+    return names
+
+
+def recorded_gaze(points: np.ndarray, what: str, rotate180: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """A recorded gaze column as (T, 2) float32 (u, v) points (NaN where not finite) and their (T,) validity.
+
+    `what` names the column in the error raised when it does not hold 2 values per frame; rotate180 turns the
+    points with their camera (u -> 1-u, v -> 1-v)."""
+    uv = points.astype(np.float32).reshape(len(points), -1)
+    if uv.shape[1] != 2:
+        raise DataImportError(f"{what} has {uv.shape[1]} values per frame, expected 2 (u, v)")
+    valid = np.isfinite(uv).all(axis=1)
+    uv[~valid] = np.nan
+    if rotate180:
+        uv = 1.0 - uv
+    return uv, valid
+
+
+def require_pyarrow() -> tuple[Any, Any]:
+    """The pyarrow and pyarrow.parquet modules, or an ImportError that says how to install them."""
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ImportError as e:  # pragma: no cover - the `data` extra declares it
+        raise ImportError(
+            "LeRobot import/export needs pyarrow: pip install 'gazereg[data]' (or pip install pyarrow)"
+        ) from e
+    return pa, pq
+
+
+def _same_source(stored: dict[str, Any], identity: dict[str, Any]) -> bool:
+    return all(stored.get(k) == v for k, v in identity.items() if k not in ("path", "root"))
+
+
+def write_episodes(
+    store: EpisodeStore,
+    episodes: Iterable[SourceEpisode],
+    total: int | None = None,
+    desc: str = "import",
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Load and write each episode not yet in the store; returns counts and throughput.
+
+    An episode already in the store is skipped when its recorded meta["source"] matches the identity (same
+    source format, episode, data set fingerprint and import settings; the path may differ), and refused
+    otherwise, so a resumed import never mixes two data sets or two settings in one store."""
+    imported = skipped = frames = 0
+    t0 = time.perf_counter()
+    bar = tqdm(total=total, desc=desc, unit="ep", disable=not progress, file=sys.stderr)
+    try:
+        for item in episodes:
+            if item.index in store:
+                stored = store.meta(item.index).get("source", {})
+                if not _same_source(stored, item.identity):
+                    raise DataImportError(
+                        f"store {store.root} already holds episode {item.index} from another source or with other "
+                        f"import settings:\n  stored:    {stored}\n  importing: {item.identity}\n"
+                        "import into a fresh store (or delete that episode folder to re-import it)"
+                    )
+                skipped += 1
+            else:
+                ep = item.load()
+                ep.meta["source"] = dict(item.identity)
+                try:
+                    store.write(ep, item.index)
+                except ValueError as e:
+                    raise DataImportError(
+                        f"{item.identity.get('path') or item.identity.get('root', '?')}: episode {item.identity.get('episode')}: {e}"
+                    ) from e
+                imported += 1
+                frames += ep.length
+            bar.update(1)
+            elapsed = time.perf_counter() - t0
+            bar.set_postfix(
+                frames=frames, fps=f"{frames / max(elapsed, 1e-9):.0f}", skipped=skipped, refresh=False
+            )
+    finally:
+        bar.close()
+    seconds = time.perf_counter() - t0
+    return {
+        "imported": imported,
+        "skipped": skipped,
+        "frames": frames,
+        "seconds": seconds,
+        "frames_per_s": frames / max(seconds, 1e-9),
+    }
+
+
+COMMANDS = Subcommands(
+    prog="gazereg import",
+    synopsis="<lerobot|hdf5|export-priors> [options]",
+    commands={
+        "lerobot": (
+            "gazereg.data.formats.lerobot_v3:import_main",
+            "import a LeRobot v3.0 data set (parquet + MP4) into an episode store",
+        ),
+        "hdf5": (
+            "gazereg.data.formats.hdf5:import_main",
+            "import LIBERO / robomimic HDF5 demonstrations into an episode store",
+        ),
+        "export-priors": (
+            "gazereg.data.formats.lerobot_v3.export:export_main",
+            "export a store's gaze priors as a LeRobot sidecar (parquet + JSON)",
+        ),
+    },
+    footer=(__doc__ or "").split("\n\n")[1],
+    noun="source",
+)
+
+
+def _run(name: str, entry: Entry, argv: list[str]) -> int:
+    """Run an import subcommand; a bad or missing source file is exit status 1 with the error on stderr."""
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return run_entry(name, entry, argv)
+    except (DataImportError, FileNotFoundError) as e:
+        print(f"gazereg import {name}: error: {e}", file=sys.stderr)
+        return 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    return COMMANDS.main(argv, run=_run)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

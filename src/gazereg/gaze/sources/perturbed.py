@@ -1,0 +1,97 @@
+"""Perturbed gaze (`perturbed`): controls that keep a prior's statistics but break its link to the task.
+
+Modes (all deterministic per episode and seed):
+  blobs          10 random 5x5-cell squares per frame (the authors' corrupted-gaze variant, on our grid);
+  shuffle        the base prior with its blocks of `block` x `block` cells spatially permuted (one
+                 permutation per episode);
+  other_episode  the base prior of another episode (a fixed derangement), resampled in time to this length.
+`shuffle` and `other_episode` read an existing prior (`base`) from the same store.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+import numpy as np
+
+from gazereg.data.store import Episode, EpisodeStore
+from gazereg.gaze.sources import register_gaze_source
+
+
+@register_gaze_source("perturbed")
+class PerturbedGaze:
+    name = "perturbed"
+
+    def __init__(
+        self,
+        mode: Literal["blobs", "shuffle", "other_episode"] = "shuffle",
+        base: str = "visuomotor",
+        seed: int = 0,
+        n_blobs: int = 10,
+        blob_cells: int = 5,
+        block: int = 8,
+    ):
+        if mode not in ("blobs", "shuffle", "other_episode"):
+            raise ValueError(f"unknown perturbation {mode!r}; use blobs, shuffle or other_episode")
+        self.mode, self.base, self.seed = mode, base, seed
+        self.n_blobs, self.blob_cells, self.block = n_blobs, blob_cells, block
+        self.store: EpisodeStore | None = None
+
+    def bind(self, store: EpisodeStore) -> None:
+        """Give the source the store it reads base priors from (the prior pipeline calls this)."""
+        self.store = store
+
+    def describe(self) -> dict[str, Any]:
+        d = {"name": self.name, "mode": self.mode, "seed": self.seed}
+        if self.mode == "blobs":
+            d.update(n_blobs=self.n_blobs, blob_cells=self.blob_cells)
+        else:
+            d.update(base=self.base, block=self.block)
+        return d
+
+    def _base(self, index: int, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+        if self.store is None:
+            raise RuntimeError("perturbed gaze needs a store: call bind(store) before use")
+        heat, valid = self.store.read_prior(self.base, index)
+        if heat.shape[1:] != tuple(size):
+            raise ValueError(
+                f"base prior {self.base!r} is {heat.shape[1:]}, requested {size}: use the same size"
+            )
+        return heat, valid
+
+    def __call__(self, episode: Episode, camera: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+        rng = np.random.default_rng([self.seed, episode.index])
+        T = episode.length
+        if self.mode == "blobs":
+            maps = np.zeros((T, *size), np.float32)
+            b = min(self.blob_cells, *size)
+            for t in range(T):
+                for _ in range(self.n_blobs):
+                    i, j = rng.integers(0, size[0] - b + 1), rng.integers(0, size[1] - b + 1)
+                    maps[t, i : i + b, j : j + b] = 1.0
+            return maps / maps.sum((1, 2), keepdims=True), np.ones(T, bool)
+        if self.mode == "shuffle":
+            heat, valid = self._base(episode.index, size)
+            k = self.block
+            if size[0] % k or size[1] % k:
+                raise ValueError(f"map size {size} is not divisible into {k}x{k} blocks")
+            gh, gw = size[0] // k, size[1] // k
+            blocks = heat.reshape(T, gh, k, gw, k).transpose(0, 1, 3, 2, 4).reshape(T, gh * gw, k, k)
+            blocks = blocks[:, rng.permutation(gh * gw)]
+            return blocks.reshape(T, gh, gw, k, k).transpose(0, 1, 3, 2, 4).reshape(T, *size), valid
+        # other_episode: a derangement over the store's episodes, fixed by the seed
+        if self.store is None:
+            raise RuntimeError("perturbed gaze needs a store: call bind(store) before use")
+        indices = self.store.indices()
+        if len(indices) < 2:
+            raise ValueError("other_episode needs at least two episodes in the store")
+        perm = np.random.default_rng(self.seed).permutation(len(indices))
+        pos = indices.index(episode.index)
+        other = (
+            indices[perm[pos]]
+            if indices[perm[pos]] != episode.index
+            else indices[perm[(pos + 1) % len(indices)]]
+        )
+        heat, valid = self._base(other, size)
+        src = np.clip(np.round(np.linspace(0, heat.shape[0] - 1, T)).astype(int), 0, heat.shape[0] - 1)
+        return heat[src], valid[src]

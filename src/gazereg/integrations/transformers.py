@@ -1,0 +1,325 @@
+"""Gaze regularization for transformers' VLA and VLM classes: PI0, PaliGemma, Idefics3 / SmolVLM, Llava.
+
+    reg = GazeRegularizer(model, {"front": camera_geometry(model, src_hw=(480, 640))}, layers=[1], weight=0.1)
+    with reg:                                  # capture differentiable attention during this forward
+        out = model(**batch)
+    gaze_term, info = reg.loss({"front": gaze})  # gaze: (B, n_patches) on the camera's patch grid
+    (out.loss + gaze_term).backward()
+
+How the attention is captured: inside `with reg:` the regularized decoder's attention implementation is
+switched to a registered wrapper (`gazereg_sdpa` / `gazereg_eager`) that runs the original unchanged and
+hands the selected layers' queries and keys to a `gazereg.attention.AttentionProbe`
+(gazereg.integrations.transformers_capture). The per-family adapters (image tokens, patch grids, query rows)
+are in gazereg.integrations.transformers_families.
+
+Which attention
+---------------
+- PI0 (`PI0ForConditionalGeneration`): the action expert's action tokens (the last `chunk_size` tokens of the
+  suffix; `queries="suffix"` adds the state token) attending to the prefix's image tokens, on DiT layers.
+- PaliGemma, Idefics3, SmolVLM, Llava: rows of the language model's layers. `queries="last"` (default): the last
+  attended token of each sample (the one predicting the first answer/action token); `"labels"`: every position
+  that predicts a supervised label (labels[t + 1] != -100, OpenVLA-style action tokens); or explicit positions.
+- Keys: the image tokens (`input_ids == config.image_token_id`), several images = several cameras in the order
+  the prompt holds them, each block mapped row-major onto its camera's `PatchGeometry` grid (pixel-shuffled
+  grids for Idefics3/SmolVLM; Llava's CLS token is skipped under `vision_feature_select_strategy="full"`).
+- Heads and queries are averaged per layer, layers averaged, then renormalised over each camera's patch keys.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+
+from gazereg.attention.probe import AttentionProbe, ProbeSpec
+from gazereg.integrations.transformers_capture import (
+    CAPTURE,
+    Capture,
+    base_of,
+    gaze_attention_name,
+    register_gaze_attention,
+    switch_attention,
+)
+from gazereg.integrations.transformers_families import (
+    FAMILIES,
+    ModelFamily,
+    QuerySpec,
+    camera_geometry,
+    detect_family,
+    image_positions,
+    query_positions,
+)
+from gazereg.losses import Divergence, WeightSchedule, gaze_loss
+from gazereg.patches import PatchGeometry
+
+__all__ = [
+    "FAMILIES",
+    "GazeRegularizer",
+    "ModelFamily",
+    "camera_geometry",
+    "detect_family",
+    "gaze_attention_name",
+    "register_gaze_attention",
+]
+
+
+class GazeRegularizer:
+    """Adds the gaze KL to a transformers VLA/VLM's training loss without changing the model.
+
+    Args:
+        model: a PI0ForConditionalGeneration, PaliGemma*, Idefics3*/SmolVLM* or Llava* model (sdpa or eager).
+        cameras: {camera: PatchGeometry} in the order the prompt holds the images, or a list of camera names
+            (each gets `camera_geometry(model)`), or one PatchGeometry / None for a single camera "image".
+        layers: indices of the regularized decoder layers (PI0: action-expert layers; VLMs: language-model
+            layers); default: the second half (middle-to-late layers).
+        weight: the gaze weight, a float or a `WeightSchedule` (evaluated at `loss(..., step=)`).
+        queries: which attention rows: PI0 "actions" (default) or "suffix"; VLMs "last" (default) or "labels";
+            or explicit positions along the regularized attention's query axis: a (n_queries,) sequence, a
+            (B, n_queries) tensor, or a callable(forward_kwargs) -> (B, n_queries).
+        divergence: "forward" KL(gaze || attention) (default), "reverse" or "js".
+
+    Usage: `with reg: out = model(**batch)`, then `term, info = reg.loss(gaze, valid)`; `loss = out.loss + term`.
+    """
+
+    def __init__(
+        self,
+        model: nn.Module,
+        cameras: Mapping[str, PatchGeometry] | Sequence[str] | PatchGeometry | None = None,
+        layers: Iterable[int] | None = None,
+        weight: float | WeightSchedule = 0.1,
+        queries: QuerySpec | None = None,
+        divergence: Divergence = "forward",
+        family: ModelFamily | str | None = None,
+    ):
+        self.model = model
+        self.family = FAMILIES[family] if isinstance(family, str) else (family or detect_family(model))
+        self.cameras = self._geometries(cameras)
+        grid = self.family.grid_hw(model)
+        for cam, geom in self.cameras.items():
+            try:
+                geom.check_grid(grid)
+            except ValueError as e:
+                raise ValueError(
+                    f"camera {cam!r}: {e} ({type(model).__name__} config gives {grid})"
+                ) from None
+        self.config = self.family.attention_config(model)
+        self.modules = self._attention_modules()
+        n = len(self.modules)
+        self.layers = tuple(range(n // 2, n)) if layers is None else tuple(int(i) for i in layers)
+        bad = [i for i in self.layers if not 0 <= i < n]
+        if bad or not self.layers:
+            raise ValueError(
+                f"layers {list(self.layers)} invalid: {type(model).__name__} has {n} regularizable layers (0..{n - 1})"
+            )
+        self.schedule = weight if isinstance(weight, WeightSchedule) else WeightSchedule(weight=float(weight))
+        self.queries = self.family.default_queries if queries is None else queries
+        self.divergence = divergence
+        self.base = base_of(self.config._attn_implementation)
+        register_gaze_attention(self.base)  # raises for unsupported implementations
+        self.probe: AttentionProbe | None = None
+        # (B, n_cameras) bool: the camera's image is in the sample (PI0's camera slots), from the last forward
+        self.present: Tensor | None = None
+        self._hooks: list[Any] = []
+        self._signature: inspect.Signature | None = None
+        self._cap_token = None
+        self._capture: Capture | None = None
+
+    # ----- setup -----------------------------------------------------------------------------------------------
+    def _geometries(self, cameras: Any) -> dict[str, PatchGeometry]:
+        if cameras is None:
+            return {"image": camera_geometry(self.model)}
+        if isinstance(cameras, PatchGeometry):
+            return {"image": cameras}
+        if isinstance(cameras, Mapping):
+            out = dict(cameras)
+        else:
+            out = {str(c): camera_geometry(self.model) for c in cameras}
+        if not out:
+            raise ValueError("at least one camera is needed")
+        return out
+
+    def _attention_modules(self) -> list[nn.Module]:
+        found = {}
+        for mod in self.model.modules():
+            if (
+                getattr(mod, "config", None) is self.config
+                and hasattr(mod, "layer_idx")
+                and hasattr(mod, "q_proj")
+            ):
+                found[int(mod.layer_idx)] = mod
+        if not found:
+            raise RuntimeError(
+                f"found no attention modules of {type(self.model).__name__}'s {self.family.name} decoder"
+            )
+        if sorted(found) != list(range(len(found))):
+            raise RuntimeError(f"attention layer_idx values {sorted(found)} are not 0..{len(found) - 1}")
+        return [found[i] for i in range(len(found))]
+
+    @property
+    def n_layers(self) -> int:
+        return len(self.modules)
+
+    # ----- token bookkeeping ---------------------------------------------------------------------------------
+    def image_positions(
+        self, input_ids: Tensor, pixel_attention_mask: Tensor | None = None
+    ) -> tuple[Tensor, Tensor]:
+        """Key positions of every camera's patch tokens.
+
+        input_ids: (B, T). pixel_attention_mask: optional (B, n_cameras) bool of present camera slots (PI0).
+        Returns keys (B, sum of n_patches over cameras) long, row-major per camera in camera order, and
+        present (B, n_cameras) bool (False: that camera's image is absent from the sample; its keys are 0).
+        """
+        return image_positions(self.family, self.model, self.cameras, input_ids, pixel_attention_mask)
+
+    def query_positions(self, inputs: dict[str, Any], batch: int, device: torch.device) -> Tensor:
+        """(B, n_queries) positions along the regularized attention's query axis for this forward."""
+        return query_positions(self.family, self.model, self.queries, inputs, batch, device)
+
+    # ----- capture ---------------------------------------------------------------------------------------------
+    def _attach(self, model: nn.Module, probe: AttentionProbe) -> list[Any]:
+        """Probe adapter: switch the decoder's attention to the capturing function, restore on removal."""
+        return switch_attention(self.config, self.base)
+
+    def _pre_forward(self, module: nn.Module, args: tuple, kwargs: dict) -> None:
+        try:
+            if self._signature is None:
+                self._signature = inspect.signature(module.forward)
+            sig = self._signature
+            inputs = dict(sig.bind_partial(*args, **kwargs).arguments)
+            for p in sig.parameters.values():
+                if p.kind is inspect.Parameter.VAR_KEYWORD:
+                    inputs.update(inputs.pop(p.name, {}) or {})
+        except TypeError:
+            inputs = dict(kwargs)
+        ids = inputs.get("input_ids")
+        if ids is None:
+            raise ValueError(
+                "gaze capture needs `input_ids` in the forward call to locate the image tokens "
+                f"(config.image_token_id); {type(module).__name__} was called without them"
+            )
+        pam = inputs.get("pixel_attention_mask") if self.family.name == "pi0" else None
+        keys, present = self.image_positions(ids, pam)
+        self.present = present.to(ids.device)
+        queries = self.query_positions(inputs, ids.shape[0], ids.device)
+        spec = ProbeSpec(queries=slice(None), keys=keys, layers=self.layers)
+        self._close_probe()
+        probe = AttentionProbe(module, spec, adapter=self._attach)
+        probe.__enter__()
+        self.probe = probe
+        self._capture = Capture(
+            probe=probe, layer_of={id(m): i for i, m in enumerate(self.modules)}, queries=queries
+        )
+        self._cap_token = CAPTURE.set(self._capture)
+
+    def _post_forward(self, module: nn.Module, args: tuple, kwargs: dict, output: Any) -> None:
+        self._close_probe()
+
+    def _close_probe(self) -> None:
+        if self._capture is not None:
+            self._capture.active = False
+        if self._cap_token is not None:
+            CAPTURE.reset(self._cap_token)
+            self._cap_token = None
+        if self.probe is not None and self.probe._token is not None:
+            self.probe.__exit__(None, None, None)
+
+    def __enter__(self) -> GazeRegularizer:
+        if self._hooks:
+            raise RuntimeError("this GazeRegularizer is already capturing")
+        self.probe = None
+        self._hooks = [
+            self.model.register_forward_pre_hook(self._pre_forward, with_kwargs=True),
+            self.model.register_forward_hook(self._post_forward, with_kwargs=True),
+        ]
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for h in self._hooks:
+            h.remove()
+        self._hooks = []
+        self._close_probe()
+
+    # ----- results ---------------------------------------------------------------------------------------------
+    def _require_probe(self) -> AttentionProbe:
+        if self.probe is None:
+            raise RuntimeError(
+                "no attention captured: run the model's forward inside `with regularizer:` first"
+            )
+        return self.probe
+
+    def attention(self, eps: float = 1e-12) -> dict[str, Tensor]:
+        """{camera: (B, n_patches)} attention of the last captured forward, renormalised per camera."""
+        probe = self._require_probe()
+        mean = torch.stack([probe.rows(i).mean(dim=(1, 2)) for i in self._checked_layers(probe)]).mean(0)
+        out, offset = {}, 0
+        for name, geom in self.cameras.items():
+            part = mean[:, offset : offset + geom.n_patches]
+            out[name] = part / part.sum(-1, keepdim=True).clamp_min(eps)
+            offset += geom.n_patches
+        return out
+
+    def _checked_layers(self, probe: AttentionProbe) -> list[int]:
+        probe._require()
+        return probe.layers
+
+    def patch_mass(self) -> Tensor:
+        """(B,) mean attention mass the queries put on all cameras' patch tokens (before renormalisation)."""
+        return self._require_probe().patch_mass()
+
+    def loss(
+        self,
+        gaze: Tensor | Mapping[str, Tensor],
+        valid: Tensor | Mapping[str, Tensor] | None = None,
+        step: int | None = None,
+    ) -> tuple[Tensor, dict[str, float]]:
+        """weight * mean over cameras of the masked gaze divergence, for the last captured forward.
+
+        gaze: (B, n_patches) for a single camera, or {camera: (B, n_patches)} (cameras missing from the dict are
+            not regularized). valid: (B,) bool or {camera: (B,) bool}; absent camera slots are always invalid.
+        Returns (weighted loss, info) with info["loss/gaze_kl"] (unweighted), info["gaze/weight"],
+        info["gaze/valid_frac"] and info["gaze/patch_mass"].
+        """
+        att = self.attention()
+        if isinstance(gaze, Tensor):
+            if len(self.cameras) != 1:
+                raise ValueError(
+                    f"{len(self.cameras)} cameras {list(self.cameras)}: pass gaze as {{camera: tensor}}"
+                )
+            gaze = {next(iter(self.cameras)): gaze}
+            valid = (
+                valid if valid is None or isinstance(valid, Mapping) else {next(iter(self.cameras)): valid}
+            )
+        unknown = sorted(set(gaze) - set(self.cameras))
+        if unknown:
+            raise KeyError(
+                f"gaze for unknown camera(s) {unknown}; the regularizer's cameras are {list(self.cameras)}"
+            )
+        names = list(self.cameras)
+        terms, fracs = [], []
+        for cam, g in gaze.items():
+            a = att[cam]
+            if g.shape != a.shape:
+                raise ValueError(
+                    f"gaze for camera {cam!r} has shape {tuple(g.shape)} but the attention over its "
+                    f"{self.cameras[cam].grid_hw} patch grid is {tuple(a.shape)}"
+                )
+            v = torch.ones(a.shape[0], dtype=torch.bool, device=a.device)
+            if valid is not None and valid.get(cam) is not None:
+                v = valid[cam].to(device=a.device, dtype=torch.bool)
+            if self.present is not None:
+                v = v & self.present[:, names.index(cam)].to(a.device)
+            term, info = gaze_loss(g.to(a.device), a, v, kind=self.divergence)
+            terms.append(term)
+            fracs.append(info["gaze/valid_frac"])
+        kl = torch.stack(terms).mean()
+        w = self.schedule(0 if step is None else step)
+        info = {
+            "loss/gaze_kl": float(kl.detach()),
+            "gaze/weight": float(w),
+            "gaze/valid_frac": float(sum(fracs) / len(fracs)),
+            "gaze/patch_mass": float(self.patch_mass().mean()),
+        }
+        return w * kl, info

@@ -1,0 +1,169 @@
+"""Two experiment runs side by side: the same arms, evaluated on the same setups, after different training
+(a longer budget, another gaze weight, other layers ...).
+
+The question it answers is "did the change move success?", e.g. whether training longer still raises it.
+Episodes pair by (arm, training seed, task, condition, setup seed), so each arm gets an exact McNemar test of
+run B against run A on the setups both evaluated, and a paired difference of the closest approach (metres)
+where the simulator records one.
+
+    gazereg compare runs/paper runs/paper6k [--out runs/paper6k/compare.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from gazereg.report.markdown import rate_difference
+from gazereg.report.tables import base_arm, paired_distance_tests, paired_tests, success_table
+from gazereg.runtime.config import config_diff
+from gazereg.runtime.io import atomic_write_json, atomic_write_text
+
+
+def load_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """(experiment config, evaluation episodes) of a finished experiment run directory."""
+    run_dir = Path(run_dir)
+    config, info = run_dir / "config.json", run_dir / "eval" / "eval_info.json"
+    for path in (config, info):
+        if not path.is_file():
+            raise FileNotFoundError(
+                f"{path} is missing: is {run_dir} an experiment run whose eval stage finished?"
+            )
+    return json.loads(config.read_text()), json.loads(info.read_text())["episodes"]
+
+
+def _relabel(records: list[dict[str, Any]], arm: str, label: str) -> list[dict[str, Any]]:
+    """One arm's records with the arm renamed to `label`, keeping the training seed (`arm@seed`)."""
+    out = []
+    for r in records:
+        name, _, seed = r["arm"].partition("@")
+        if name == arm:
+            out.append({**r, "arm": f"{label}@{seed}"})
+    return out
+
+
+def compare_records(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """{"arm | condition": {a, b (success cells), pairs, b_only, a_only, rate_diff, rate_ci95, mcnemar_p, fisher_p,
+    distance}} for every arm and condition both runs evaluated. `a_only`/`b_only` count the paired setups only
+    that run solved; `rate_diff` is B's success rate minus A's on the paired setups, `rate_ci95` its 95%
+    interval; `distance` is the paired closest-approach difference B - A (negative: B came closer), or None."""
+    shared_arms = sorted({base_arm(r["arm"]) for r in a} & {base_arm(r["arm"]) for r in b})
+    out: dict[str, dict[str, Any]] = {}
+    for arm in shared_arms:
+        # Run A and run B as two arms of one experiment: the paired tests of B against reference A.
+        records = _relabel(a, arm, "A") + _relabel(b, arm, "B")
+        cells = success_table(records)
+        distances = paired_distance_tests(records, reference="A")
+        for name, test in paired_tests(records, reference="A").items():
+            cond = name.split(" | ", 1)[1]
+            out[f"{arm} | {cond}"] = {
+                "a": {k: cells["A"][cond][k] for k in ("successes", "n", "rate", "ci95")},
+                "b": {k: cells["B"][cond][k] for k in ("successes", "n", "rate", "ci95")},
+                "pairs": test["pairs"],
+                "b_only": test["B_only"],
+                "a_only": test["A_only"],
+                "rate_diff": test["rate_diff"],
+                "rate_ci95": test["rate_ci95"],
+                "mcnemar_p": test["mcnemar_p"],
+                "fisher_p": test["fisher_p"],
+                "distance": distances.get(name),
+            }
+    if not out:
+        raise ValueError(
+            "the two runs share no evaluated episode (same arm, training seed, task, condition and setup seed); "
+            f"A has arms {sorted({base_arm(r['arm']) for r in a})} on setups {_seed_span(a)}, "
+            f"B has arms {sorted({base_arm(r['arm']) for r in b})} on setups {_seed_span(b)}"
+        )
+    return out
+
+
+def _seed_span(records: list[dict[str, Any]]) -> str:
+    seeds = sorted({int(r["seed"]) for r in records})
+    return f"{seeds[0]}..{seeds[-1]}" if seeds else "none"
+
+
+def success_curves(run_dir: Path) -> dict[str, dict[str, list[Any]]]:
+    """{arm: {steps, rates}}: a run's clean success at its training checkpoints, from its report.json
+    (empty when the run has no report yet)."""
+    path = Path(run_dir) / "report.json"
+    if not path.is_file():
+        return {}
+    arms = json.loads(path.read_text()).get("convergence", {}).get("arms", {})
+    return {arm: {"steps": c["steps"], "rates": c["rates"]} for arm, c in arms.items()}
+
+
+def compare_runs(run_a: Path, run_b: Path) -> dict[str, Any]:
+    """Both runs' config differences, the per-arm, per-condition paired comparison of B against A, and each
+    run's success-versus-steps curve."""
+    cfg_a, rec_a = load_run(run_a)
+    cfg_b, rec_b = load_run(run_b)
+    return {
+        "a": str(run_a),
+        "b": str(run_b),
+        "differences": config_diff(cfg_a, cfg_b, ignore=("out",)),
+        "rows": compare_records(rec_a, rec_b),
+        "curves": {"a": success_curves(run_a), "b": success_curves(run_b)},
+    }
+
+
+def _pct(cell: dict[str, Any]) -> str:
+    lo, hi = cell["ci95"]
+    return f"{cell['successes']}/{cell['n']} = {cell['rate']:.2f} [{lo:.2f}, {hi:.2f}]"
+
+
+def compare_markdown(result: dict[str, Any], level: int = 2) -> str:
+    """The comparison as a markdown section (heading `level`): what differs, then one row per arm and
+    condition, then each run's success-versus-steps curve."""
+    diffs = result["differences"]
+    lines = [
+        f"{'#' * level} {result['b']} (B) against {result['a']} (A)",
+        "",
+        "What differs: "
+        + (", ".join(f"`{k}` {v[0]!r} -> {v[1]!r}" for k, v in diffs.items()) if diffs else "nothing"),
+        "",
+        "| arm | condition | A success [95% CI] | B success [95% CI] | paired setups | only A / only B "
+        "| success B - A [95% CI] | McNemar p | closest approach B - A (m) [95% CI] |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for name, row in result["rows"].items():
+        arm, cond = name.split(" | ", 1)
+        d = row["distance"]
+        dist = f"{d['mean_diff']:+.3f} [{d['ci95'][0]:+.3f}, {d['ci95'][1]:+.3f}]" if d else "n/a"
+        lines.append(
+            f"| {arm} | {cond} | {_pct(row['a'])} | {_pct(row['b'])} | {row['pairs']} "
+            f"| {row['a_only']} / {row['b_only']} | {rate_difference(row)} | {row['mcnemar_p']:.3g} | {dist} |"
+        )
+    curves = result.get("curves", {})
+    if any(curves.values()):
+        lines += ["", "Clean success at each run's own checkpoints (its convergence episodes):", ""]
+        for key in ("a", "b"):
+            for arm, c in curves.get(key, {}).items():
+                points = ", ".join(f"{s}: {r:.2f}" for s, r in zip(c["steps"], c["rates"]))
+                lines.append(f"- {key.upper()} {arm}: {points}")
+    lines += [
+        "",
+        "Pairs are the same training seed, task, condition and setup seed in both runs; McNemar is exact "
+        "(two-sided) on the discordant pairs.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="gazereg compare",
+        description="Compare two experiment runs evaluated on the same setups (paired by training seed, task, "
+        "condition and setup seed).",
+    )
+    ap.add_argument("run_a", type=Path, help="the reference run directory (A)")
+    ap.add_argument("run_b", type=Path, help="the changed run directory (B)")
+    ap.add_argument("--out", type=Path, help="write the markdown here (and the JSON beside it, .json)")
+    args = ap.parse_args(argv)
+    result = compare_runs(args.run_a, args.run_b)
+    text = compare_markdown(result)
+    if args.out:
+        atomic_write_text(args.out, text)
+        atomic_write_json(args.out.with_suffix(".json"), result)
+    print(text, end="")
+    return 0

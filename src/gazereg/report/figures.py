@@ -1,0 +1,101 @@
+"""The experiment's figures: success bars with intervals, success-versus-steps curves, attention panels."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_success(table: dict[str, dict[str, dict[str, Any]]], path: Path) -> Path:
+    plt = _plt()
+    arms = list(table)
+    conds = list(next(iter(table.values())))
+    width = 0.8 / max(len(arms), 1)
+    fig, ax = plt.subplots(figsize=(1.6 + 1.4 * len(conds), 3.2))
+    for i, arm in enumerate(arms):
+        x = np.arange(len(conds)) + (i - (len(arms) - 1) / 2) * width
+        rates = [table[arm][c]["rate"] for c in conds]
+        lo = [table[arm][c]["rate"] - table[arm][c]["ci95"][0] for c in conds]
+        hi = [table[arm][c]["ci95"][1] - table[arm][c]["rate"] for c in conds]
+        ax.bar(x, rates, width, yerr=[lo, hi], capsize=3, label=arm)
+    ax.set_xticks(np.arange(len(conds)), conds, rotation=15)
+    ax.set_ylim(0, 1)
+    ax.set_ylabel("success rate (Wilson 95%)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_convergence(
+    conv: dict[str, Any], losses: dict[str, list[tuple[int, float, float | None]]], path: Path
+) -> Path:
+    """Success vs steps (clean), training action loss, and each gaze arm's held-out KL to its own prior."""
+    plt = _plt()
+    arms = list(dict.fromkeys([*conv["arms"], *losses]))
+    color = {arm: f"C{i}" for i, arm in enumerate(arms)}  # one colour per arm in every panel
+    fig, axes = plt.subplots(1, 3, figsize=(11, 3.2))
+    for arm, c in conv["arms"].items():
+        ci = np.array(c["ci95"])
+        axes[0].plot(c["steps"], c["rates"], marker="o", label=arm, color=color[arm])
+        axes[0].fill_between(c["steps"], ci[:, 0], ci[:, 1], alpha=0.15, color=color[arm])
+    axes[0].set(xlabel="training step", ylabel="success (clean)", ylim=(0, 1), title="success vs steps")
+    for arm, pts in losses.items():
+        if not pts:
+            continue
+        s = [p[0] for p in pts]
+        axes[1].plot(s, [p[1] for p in pts], label=arm, color=color[arm])
+        kl = [(p[0], p[2]) for p in pts if p[2] is not None]
+        if kl:
+            axes[2].plot(*zip(*kl), label=arm, color=color[arm])
+    axes[1].set(xlabel="training step", ylabel="action loss (L1, normalised)", title="training loss")
+    axes[2].set(
+        xlabel="training step", ylabel="KL(own prior || attention)", title="held-out KL to the arm's prior"
+    )
+    for ax in axes:
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_attention(panels: list[dict[str, Any]], columns: list[str], path: Path) -> Path:
+    """panels: one row each: {"title": str, "frame": (H, W, 3) uint8, column: (H, W) heat or None}."""
+    from gazereg.viz.overlay import overlay
+
+    plt = _plt()
+    cols = ["observation", *columns]
+    fig, axes = plt.subplots(
+        len(panels), len(cols), figsize=(2.1 * len(cols), 2.2 * len(panels)), squeeze=False
+    )
+    for i, row in enumerate(panels):
+        for j, col in enumerate(cols):
+            ax = axes[i, j]
+            img = (
+                row["frame"]
+                if col == "observation" or row.get(col) is None
+                else overlay(row["frame"], row[col])
+            )
+            ax.imshow(img)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if i == 0:
+                ax.set_title(col, fontsize=9)
+        axes[i, 0].set_ylabel(row["title"], fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

@@ -1,0 +1,209 @@
+"""The experiment's numbers: success tables with Wilson intervals, paired tests, distances, convergence.
+
+Everything is computed from the experiment's own records (evaluation episodes, training metrics); no number
+is typed in. Arms trained with several seeds are pooled over seeds (their evaluation episodes pair by
+training seed, task and setup seed).
+"""
+
+from __future__ import annotations
+
+import math
+import platform
+import statistics
+from collections import defaultdict
+from collections.abc import Callable, Iterator
+from typing import Any
+
+from gazereg.evaluation.stats import (
+    fisher_exact,
+    mcnemar_exact,
+    paired_mean_difference,
+    paired_rate_difference,
+    steps_to_threshold,
+    wilson,
+)
+
+
+def base_arm(name: str) -> str:
+    return name.split("@", 1)[0]
+
+
+def success_table(records: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:
+    """{arm: {condition: {successes, n, rate, ci95, per_task: {...}}}} pooled over training seeds."""
+    cells: dict[tuple[str, str, str], list[bool]] = defaultdict(list)
+    for r in records:
+        cells[(base_arm(r["arm"]), r["condition"], r["task"])].append(bool(r["success"]))
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    for (arm, cond, task), xs in sorted(cells.items()):
+        c = out.setdefault(arm, {}).setdefault(cond, {"successes": 0, "n": 0, "per_task": {}})
+        c["successes"] += sum(xs)
+        c["n"] += len(xs)
+        c["per_task"][task] = {"successes": sum(xs), "n": len(xs), "ci95": list(wilson(sum(xs), len(xs)))}
+    for arm in out.values():
+        for c in arm.values():
+            c["rate"] = c["successes"] / c["n"]
+            c["ci95"] = list(wilson(c["successes"], c["n"]))
+        if "clean" in arm:
+            for c in arm.values():
+                c["drop_from_clean"] = arm["clean"]["rate"] - c["rate"]
+    return out
+
+
+def per_seed_table(records: list[dict[str, Any]]) -> dict[str, dict[str, list[int]]]:
+    """{arm@seed: {condition: [successes, n]}} over tasks: how consistent an effect is across training seeds
+    (the episodes of one training seed are not independent of each other; seeds are)."""
+    out: dict[str, dict[str, list[int]]] = {}
+    for r in records:
+        cell = out.setdefault(r["arm"], {}).setdefault(r["condition"], [0, 0])
+        cell[0] += int(bool(r["success"]))
+        cell[1] += 1
+    return dict(sorted(out.items()))
+
+
+def paired_by_setup(
+    records: list[dict[str, Any]], value: Callable[[dict[str, Any]], Any], reference: str
+) -> Iterator[tuple[str, str, list[Any], list[Any]]]:
+    """For each arm but `reference` and each condition both have: (name "arm vs reference | condition", arm,
+    the arm's values, the reference's values) on the episodes they share, paired by (training seed, task,
+    setup seed). `value(record)` is what is compared; records where it is None are left out."""
+    by: dict[tuple[str, str], dict[tuple[str, str, int], Any]] = defaultdict(dict)
+    for r in records:
+        v = value(r)
+        if v is not None:
+            arm, _, seed = r["arm"].partition("@")
+            by[(arm, r["condition"])][(seed, r["task"], r["seed"])] = v
+    for arm in sorted({a for a, _ in by} - {reference}):
+        for (a, cond), xs in by.items():
+            ref = by.get((reference, cond))
+            if a != arm or not ref:
+                continue
+            common = sorted(set(xs) & set(ref))
+            if common:
+                yield f"{arm} vs {reference} | {cond}", arm, [xs[k] for k in common], [ref[k] for k in common]
+
+
+def paired_tests(records: list[dict[str, Any]], reference: str = "baseline") -> dict[str, dict[str, Any]]:
+    """Each arm against `reference` per condition: exact McNemar on episodes paired by (training seed, task,
+    setup seed), Fisher's exact test on the pooled counts, and the paired success-rate difference (arm minus
+    reference) with its 95% interval (`stats.paired_rate_difference`)."""
+    out = {}
+    for name, arm, x, y in paired_by_setup(records, lambda r: bool(r["success"]), reference):
+        m, d = mcnemar_exact(x, y), paired_rate_difference(x, y)
+        out[name] = {
+            "pairs": len(x),
+            f"{arm}_only": m["a_only"],
+            f"{reference}_only": m["b_only"],
+            "mcnemar_p": m["p_value"],
+            "fisher_p": fisher_exact(sum(x), len(x), sum(y), len(y)),
+            "rate_diff": d["diff"],
+            "rate_ci95": d["ci95"],
+        }
+    return out
+
+
+def distance_table(records: list[dict[str, Any]], key: str = "min_distance") -> dict[str, dict[str, Any]]:
+    """{arm: {condition: {mean, ci95, n}}} of a per-episode distance (metres) pooled over training seeds and
+    tasks (normal-approximation interval from the sample SD, as `stats.paired_mean_difference`); empty when
+    the records carry none (a simulator without a progress measure)."""
+    cells: dict[tuple[str, str], list[float]] = defaultdict(list)
+    for r in records:
+        if key in r:
+            cells[(base_arm(r["arm"]), r["condition"])].append(float(r[key]))
+    out: dict[str, dict[str, Any]] = {}
+    for (arm, cond), xs in sorted(cells.items()):
+        mean, sd = sum(xs) / len(xs), statistics.stdev(xs) if len(xs) > 1 else 0.0
+        half = 1.959964 * sd / math.sqrt(len(xs))
+        out.setdefault(arm, {})[cond] = {"mean": mean, "ci95": [mean - half, mean + half], "n": len(xs)}
+    return out
+
+
+def paired_distance_tests(
+    records: list[dict[str, Any]], key: str = "min_distance", reference: str = "baseline"
+) -> dict[str, dict[str, Any]]:
+    """Each arm against `reference` per condition on a per-episode distance, paired by (training seed, task,
+    setup seed): mean difference (negative: closer than the reference), 95% interval, permutation p."""
+    pairs = paired_by_setup(records, lambda r: float(r[key]) if key in r else None, reference)
+    return {name: paired_mean_difference(x, y) for name, _, x, y in pairs}
+
+
+def convergence(curves: dict[str, dict[int, tuple[int, int]]], threshold: float) -> dict[str, Any]:
+    """curves: {arm: {step: (successes, n)}} -> rates, steps to `threshold`, and each arm's steps to reach the
+    baseline's final success rate."""
+    out: dict[str, Any] = {"threshold": threshold, "arms": {}}
+    for arm, pts in curves.items():
+        steps = sorted(pts)
+        rates = [pts[s][0] / pts[s][1] for s in steps]
+        out["arms"][arm] = {
+            "steps": steps,
+            "rates": rates,
+            "ci95": [list(wilson(*pts[s])) for s in steps],
+            "steps_to_threshold": steps_to_threshold(steps, rates, threshold),
+        }
+    if "baseline" in out["arms"] and out["arms"]["baseline"]["rates"]:
+        final = out["arms"]["baseline"]["rates"][-1]
+        out["baseline_final"] = final
+        for c in out["arms"].values():
+            c["steps_to_baseline_final"] = (
+                steps_to_threshold(c["steps"], c["rates"], final) if final > 0 else None
+            )
+    return out
+
+
+def overlap(a: list[float], b: list[float]) -> bool:
+    return a[0] <= b[1] and b[0] <= a[1]
+
+
+def verdict(
+    success: dict[str, Any],
+    reference: str = "baseline",
+    paired: dict[str, dict[str, Any]] | None = None,
+    alpha: float = 0.05,
+) -> list[str]:
+    """Plain sentences on what the data allow one to conclude: with `paired_tests`' results, the paired exact
+    test on the shared setups decides (at `alpha`); without, only non-overlapping Wilson intervals do."""
+    if reference not in success:
+        return ["No baseline arm: no comparison."]
+    out = []
+    for arm in success:
+        if arm == reference:
+            continue
+        for cond, c in success[arm].items():
+            r = success[reference][cond]
+            diff = c["rate"] - r["rate"]
+            head = f"- {arm} vs {reference}, {cond}: {c['rate']:.2f} vs {r['rate']:.2f} ({diff:+.2f})"
+            apart = not overlap(c["ci95"], r["ci95"])
+            intervals = "the 95% intervals do not overlap" if apart else "the 95% intervals overlap"
+            better = "better" if diff > 0 else "worse"
+            test = (paired or {}).get(f"{arm} vs {reference} | {cond}")
+            if test is not None:
+                p = test["mcnemar_p"]
+                if "rate_ci95" in test:
+                    lo, hi = test["rate_ci95"]
+                    head += f", paired difference 95% CI [{lo:+.2f}, {hi:+.2f}]"
+                if p < alpha:
+                    out.append(
+                        f"{head}; paired McNemar p = {p:.3g} < {alpha}: {arm} is {better} ({intervals})."
+                    )
+                else:
+                    out.append(
+                        f"{head}; paired McNemar p = {p:.3g}: no difference shown at this budget ({intervals})."
+                    )
+            elif apart:
+                out.append(f"{head}; {intervals}: {arm} is {better}.")
+            else:
+                out.append(f"{head}; {intervals}, so this budget does not decide it.")
+    return out or [f"Only the {reference} arm ran: no comparison."]
+
+
+def machine_summary() -> dict[str, Any]:
+    import os
+
+    import torch
+
+    return {
+        "summary": f"{platform.machine()} CPU, {os.cpu_count()} cores, torch {torch.__version__}, Python {platform.python_version()}",
+        "cores": os.cpu_count(),
+        "torch": torch.__version__,
+        "python": platform.python_version(),
+        "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
+    }

@@ -1,0 +1,214 @@
+"""Training checkpoints without pickle: tensors in safetensors, structure in JSON, written atomically.
+
+    run_dir/checkpoints/step_000100/
+      model.safetensors, config.json, tokenizer.json   the policy to evaluate (EMA weights when EMA is on);
+                                                        loads with Policy.from_pretrained, no training state
+      training_state/
+        state.json                                      step, epoch, the resolved training config
+        model_raw.safetensors                           the raw (non-EMA) weights, only when EMA is on
+        optimizer.safetensors + optimizer.json          optimizer tensors + param groups and scalars
+        scheduler.json                                  LR scheduler state
+        rng.safetensors + rng.json                      torch (CPU and CUDA), numpy and python RNG states
+
+The whole step folder is written under a temporary name and renamed, so a checkpoint exists completely or
+not at all; `latest_checkpoint` therefore never returns a half-written one.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+import re
+import shutil
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from safetensors.torch import load_file, save_file
+from torch import Tensor
+
+from gazereg.runtime.io import atomic_dir
+
+STEP_RE = re.compile(r"^step_(\d{6,})$")
+STATE_DIR = "training_state"
+
+
+def checkpoint_dir(run_dir: str | Path, step: int) -> Path:
+    return Path(run_dir) / "checkpoints" / f"step_{step:06d}"
+
+
+def list_checkpoints(run_dir: str | Path) -> list[tuple[int, Path]]:
+    base = Path(run_dir) / "checkpoints"
+    if not base.exists():
+        return []
+    out = []
+    for p in base.iterdir():
+        m = STEP_RE.match(p.name)
+        if m and (p / STATE_DIR / "state.json").exists():
+            out.append((int(m.group(1)), p))
+    return sorted(out)
+
+
+def latest_checkpoint(run_dir: str | Path) -> Path | None:
+    cks = list_checkpoints(run_dir)
+    return cks[-1][1] if cks else None
+
+
+def prune_checkpoints(run_dir: str | Path, keep: int) -> None:
+    """Delete all but the `keep` newest checkpoints (keep <= 0 keeps everything)."""
+    if keep <= 0:
+        return
+    for _, p in list_checkpoints(run_dir)[:-keep]:
+        shutil.rmtree(p, ignore_errors=True)
+
+
+# ----- optimizer state ------------------------------------------------------------------------------------
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, tuple | list):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+def split_state(sd: Mapping[str, Any], prefix: str = "") -> tuple[dict[str, Tensor], Any]:
+    """Nested state dict -> (flat tensors, JSON structure with {"__tensor__": key} placeholders)."""
+    tensors: dict[str, Tensor] = {}
+
+    def walk(x: Any, path: str) -> Any:
+        if isinstance(x, Tensor):
+            tensors[path] = x.detach().cpu().contiguous()
+            return {"__tensor__": path}
+        if isinstance(x, dict):
+            return {
+                "__dict__": [
+                    [walk(k, f"{path}.k{i}") if isinstance(k, Tensor) else k, walk(v, f"{path}.{k}")]
+                    for i, (k, v) in enumerate(x.items())
+                ]
+            }
+        if isinstance(x, tuple | list):
+            return {
+                "__list__": [walk(v, f"{path}.{i}") for i, v in enumerate(x)],
+                "tuple": isinstance(x, tuple),
+            }
+        return _jsonable(x)
+
+    return tensors, walk(dict(sd), prefix or "s")
+
+
+def join_state(tensors: Mapping[str, Tensor], structure: Any) -> Any:
+    """Inverse of split_state (dict keys keep their JSON type: ints stay ints)."""
+
+    def walk(x: Any) -> Any:
+        if isinstance(x, dict):
+            if "__tensor__" in x:
+                return tensors[x["__tensor__"]]
+            if "__dict__" in x:
+                return {k: walk(v) for k, v in x["__dict__"]}
+            if "__list__" in x:
+                items = [walk(v) for v in x["__list__"]]
+                return tuple(items) if x.get("tuple") else items
+        return x
+
+    return walk(structure)
+
+
+def save_tensors_json(directory: Path, name: str, sd: Mapping[str, Any]) -> None:
+    tensors, structure = split_state(sd)
+    save_file(tensors, str(directory / f"{name}.safetensors"))
+    (directory / f"{name}.json").write_text(json.dumps(structure) + "\n")
+
+
+def load_tensors_json(directory: Path, name: str, device: str = "cpu") -> Any:
+    tensors = load_file(str(directory / f"{name}.safetensors"), device=device)
+    return join_state(tensors, json.loads((directory / f"{name}.json").read_text()))
+
+
+# ----- RNG ------------------------------------------------------------------------------------------------
+def rng_state() -> dict[str, Any]:
+    np_state = np.random.get_state()
+    state: dict[str, Any] = {
+        "torch": torch.get_rng_state(),
+        "numpy": {
+            "name": np_state[0],
+            "keys": torch.from_numpy(np_state[1].astype(np.int64)),
+            "pos": int(np_state[2]),
+            "has_gauss": int(np_state[3]),
+            "cached_gaussian": float(np_state[4]),
+        },
+        "python": random.getstate(),
+    }
+    if torch.cuda.is_available():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def set_rng_state(state: Mapping[str, Any]) -> None:
+    torch.set_rng_state(state["torch"].to(torch.uint8))
+    n = state["numpy"]
+    np.random.set_state(
+        (n["name"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"])
+    )
+    py = state["python"]
+    random.setstate((py[0], tuple(py[1]), py[2]))
+    if "cuda" in state and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all([s.to(torch.uint8) for s in state["cuda"]])
+
+
+# ----- whole checkpoints ----------------------------------------------------------------------------------
+def save_checkpoint(
+    run_dir: str | Path,
+    step: int,
+    policy: Any,
+    optimizer: torch.optim.Optimizer,
+    scheduler: Any,
+    state: Mapping[str, Any],
+    eval_state_dict: Mapping[str, Tensor] | None = None,
+) -> Path:
+    """Write checkpoints/step_XXXXXX atomically. `policy` supplies the raw weights (and writes the pretrained
+    files); `eval_state_dict` (EMA weights) goes into model.safetensors instead when given."""
+    path = checkpoint_dir(run_dir, step)
+    with atomic_dir(path) as tmp:
+        policy.write_pretrained(tmp, eval_state_dict)
+        ts = tmp / STATE_DIR
+        ts.mkdir()
+        if eval_state_dict is not None:
+            save_file(
+                {k: v.detach().cpu().contiguous() for k, v in policy.state_dict().items()},
+                str(ts / "model_raw.safetensors"),
+            )
+        save_tensors_json(ts, "optimizer", optimizer.state_dict())
+        sched = {k: v for k, v in scheduler.state_dict().items() if k != "lr_lambdas"}
+        (ts / "scheduler.json").write_text(json.dumps(_jsonable(sched)) + "\n")
+        save_tensors_json(ts, "rng", rng_state())
+        (ts / "state.json").write_text(
+            json.dumps(_jsonable({**state, "step": step}), indent=2, sort_keys=True) + "\n"
+        )
+    return path
+
+
+def load_checkpoint(
+    path: str | Path, policy: Any, optimizer: torch.optim.Optimizer, scheduler: Any, restore_rng: bool = True
+) -> dict[str, Any]:
+    """Restore raw weights, optimizer, scheduler (and RNG) from a checkpoint; returns state.json (with the EMA
+    state dict under 'ema_state_dict' when the checkpoint holds one)."""
+    path = Path(path)
+    ts = path / STATE_DIR
+    if not (ts / "state.json").exists():
+        raise FileNotFoundError(f"{path} is not a training checkpoint (no {STATE_DIR}/state.json)")
+    state = json.loads((ts / "state.json").read_text())
+    model_sd = load_file(str(path / "model.safetensors"))
+    if (ts / "model_raw.safetensors").exists():
+        state["ema_state_dict"] = model_sd
+        model_sd = load_file(str(ts / "model_raw.safetensors"))
+    policy.load_state_dict(model_sd)
+    optimizer.load_state_dict(load_tensors_json(ts, "optimizer"))
+    sched = json.loads((ts / "scheduler.json").read_text())
+    scheduler.load_state_dict({**scheduler.state_dict(), **sched})
+    if restore_rng:
+        set_rng_state(load_tensors_json(ts, "rng"))
+    return state

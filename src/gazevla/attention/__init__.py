@@ -1,5 +1,0 @@
-"""Attention probes: differentiable attention from chosen queries to one camera's patch keys."""
-
-from gazevla.attention.probe import AttentionProbe, ProbeSpec, tap
-
-__all__ = ["AttentionProbe", "ProbeSpec", "tap"]
