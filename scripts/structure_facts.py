@@ -22,19 +22,21 @@ ROOT = Path(__file__).resolve().parents[1]
 
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("runtime",),
-    ("losses", "patches", "metrics", "attention"),
-    ("gaze",),
+    ("losses", "patches", "metrics", "attention", "gaze.heatmaps", "gaze.aggregation"),
     ("data",),
+    ("gaze",),
+    ("viz",),
     ("envs",),
     ("policies",),
     ("training",),
     ("evaluation",),
-    ("integrations", "viz"),
+    ("integrations",),
     ("report",),
     ("experiment",),
     ("cli", "__init__"),
 )
-"""the data flow's order, lowest first: demos -> store -> priors -> patches -> train -> eval -> report"""
+"""lowest first: shared infrastructure, the core (torch + numpy), then the data flow: demos -> store -> priors
+(and pictures of them) -> simulation -> policy -> training -> evaluation -> report -> the experiment"""
 
 MAX_FILE_LINES = 400
 MAX_FUNCTION_LINES = 60
@@ -114,8 +116,11 @@ def loops(graph: dict[str, set[str]]) -> list[list[str]]:
 
 
 def top_of(module: str) -> str:
-    """The package's first-level part a module belongs to (`gazereg.gaze.priors` -> `gaze`)."""
-    return module.split(".")[1] if "." in module else "__init__"
+    """The unit of LAYERS a module belongs to: the longest entry its dotted path starts with (the core modules
+    `gaze.heatmaps` and `gaze.aggregation` live in the gaze package), else its first-level part."""
+    rel = module.split(".", 1)[1] if "." in module else "__init__"
+    units = [u for names in LAYERS for u in names if rel == u or rel.startswith(u + ".")]
+    return max(units, key=len) if units else rel.split(".")[0]
 
 
 def layer_of(module: str) -> int | None:
@@ -199,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"import loops (groups of modules that import each other): {len(facts['loops'])}")
     for group in facts["loops"]:
         print(f"  - {' <-> '.join(group)}")
-    print(f"loops between the package's first-level parts: {len(facts['package_loops'])}")
+    print(f"loops between the layers' units (first-level parts): {len(facts['package_loops'])}")
     for group in facts["package_loops"]:
         print(f"  - {' <-> '.join(group)}")
     print(f"imports up the layers: {len(facts['back_arrows'])}")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-__version__ = "0.1.0"
+from gazereg.runtime.version import __version__
 
 _EXPORTS = {
     "heatmaps_from_points": "gazereg.gaze.heatmaps",

@@ -50,7 +50,7 @@ COMMANDS = Subcommands(
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["--version"]:
-        from gazereg import __version__
+        from gazereg.runtime.version import __version__
 
         print(__version__)
         return 0

@@ -117,8 +117,8 @@ def test_priors_train_and_eval_on_libero(demos, tmp_path):
     `gazereg eval --env libero` on that checkpoint: the policy's cameras are LiberoEnv's."""
     from gazereg.evaluation.rollout import EvalConfig, evaluate
     from gazereg.gaze.priors import PriorsConfig, make_priors
-    from gazereg.training.config import DataConfig, smoke
-    from gazereg.training.loop import GazeConfig, train
+    from gazereg.training.config import DataConfig, GazeConfig, smoke
+    from gazereg.training.loop import train
 
     cfg, _ = demos
     name = make_priors(

@@ -12,8 +12,9 @@ from safetensors.torch import load_file
 
 from gazereg.policies import load_policy
 from gazereg.training.checkpoint import latest_checkpoint, list_checkpoints
+from gazereg.training.config import GazeConfig, OptimConfig, smoke
 from gazereg.training.logger import read_metrics
-from gazereg.training.loop import GazeConfig, OptimConfig, main, smoke, train
+from gazereg.training.loop import main, train
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -9,9 +9,9 @@ from pathlib import Path
 
 from gazereg.evaluation.rollout import ROBUSTNESS_CONDITIONS, EvalConfig
 from gazereg.gaze.aggregation import AggregationConfig
-from gazereg.training.loop import DataConfig, GazeConfig, OptimConfig, TrainConfig
-from gazereg.training.loop import quick as quick_train
-from gazereg.training.loop import smoke as smoke_train
+from gazereg.training.config import DataConfig, GazeConfig, OptimConfig, TrainConfig
+from gazereg.training.config import quick as quick_train
+from gazereg.training.config import smoke as smoke_train
 
 
 @dataclass(frozen=True)

@@ -46,7 +46,7 @@ from gazereg.report.tables import base_arm
 from gazereg.runtime.clock import ResumableClock
 from gazereg.runtime.config import config_diff, save_config, to_dict
 from gazereg.runtime.io import atomic_write_json, atomic_write_text
-from gazereg.training.loop import TrainConfig
+from gazereg.training.config import TrainConfig
 
 log = logging.getLogger(__name__)
 

@@ -22,10 +22,10 @@ from typing import Any
 
 from tqdm import tqdm
 
-from gazereg import __version__
 from gazereg.data.store import EpisodeStore
 from gazereg.gaze.aggregation import AggregationConfig, aggregate
 from gazereg.gaze.sources import GazeSource, make_gaze_source
+from gazereg.runtime.version import __version__
 
 log = logging.getLogger(__name__)
 

@@ -5,7 +5,7 @@
     paper()   a GPU-sized run
 
 `gazereg train --preset NAME` starts from PRESETS[NAME]; every field can be overridden on the command line
-(e.g. --gaze.prior visuomotor --optim.lr 3e-4). Re-exported by gazereg.training.loop.
+(e.g. --gaze.prior visuomotor --optim.lr 3e-4).
 """
 
 from __future__ import annotations

@@ -26,7 +26,6 @@ import contextlib
 import dataclasses
 import json
 import logging
-import math
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -56,46 +55,15 @@ from gazereg.runtime.seeding import seed_everything
 from gazereg.training.checkpoint import latest_checkpoint, load_checkpoint, prune_checkpoints, save_checkpoint
 from gazereg.training.config import (  # re-exported: gazereg.training.loop is where callers import them from
     PRESETS,
-    DataConfig,
-    GazeConfig,
-    OptimConfig,
     TrainConfig,
-    paper,
-    quick,
-    smoke,
 )
 from gazereg.training.ema import EMA
 from gazereg.training.logger import MetricsFile, make_logger
+from gazereg.training.schedule import lr_lambda, param_groups, step_generator
 
 log = logging.getLogger(__name__)
 
 Callback = Callable[[int, nn.Module], "dict[str, Any] | None"]
-
-
-# ----- building blocks ----------------------------------------------------------------------------------------
-def lr_lambda(step: int, total: int, warmup: int, min_frac: float) -> float:
-    if warmup > 0 and step < warmup:
-        return (step + 1) / warmup
-    t = min(1.0, max(0.0, (step - warmup) / max(1, total - warmup)))
-    return min_frac + (1 - min_frac) * 0.5 * (1 + math.cos(math.pi * t))
-
-
-def param_groups(model: nn.Module, weight_decay: float) -> list[dict[str, Any]]:
-    """Weight decay on matrices and conv kernels; none on biases, norms, embeddings and position tables."""
-    decay, no_decay = [], []
-    for name, p in model.named_parameters():
-        if not p.requires_grad:
-            continue
-        skip = p.ndim < 2 or "pos" in name or "embed" in name
-        (no_decay if skip else decay).append(p)
-    return [{"params": decay, "weight_decay": weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
-
-
-def step_generator(seed: int, step: int, rank: int, device: torch.device) -> torch.Generator:
-    """The generator for every random draw of one training step (augmentation, flow noise)."""
-    g = torch.Generator(device=device)
-    g.manual_seed((seed * 1_000_003 + step) * 1009 + rank)
-    return g
 
 
 @dataclass
@@ -448,28 +416,6 @@ def main(argv: list[str] | None = None) -> int:
             )
         )
     return 0
-
-
-__all__ = [
-    "PRESETS",
-    "Built",
-    "Callback",
-    "DataConfig",
-    "GazeConfig",
-    "OptimConfig",
-    "TrainConfig",
-    "build",
-    "evaluate_batch",
-    "fixed_batch",
-    "lr_lambda",
-    "main",
-    "paper",
-    "param_groups",
-    "quick",
-    "smoke",
-    "step_generator",
-    "train",
-]
 
 
 if __name__ == "__main__":
