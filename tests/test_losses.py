@@ -84,3 +84,46 @@ def test_weight_schedules():
     assert cos(1000) == pytest.approx(0.0)
     with pytest.raises(ValueError):
         WeightSchedule(-1.0)
+
+
+def test_half_precision_attention_gives_a_finite_loss_and_finite_gradients():
+    # fp16 rounds the 1e-8 floor to 0: computed in fp16 the KL of a near-zero attention cell is inf
+    gaze = _dists(0)
+    logits = torch.full((4, 16), -30.0)
+    logits[:, 0] = 30.0
+    logits = logits.half().requires_grad_(True)
+    loss, _ = gaze_loss(gaze, torch.softmax(logits.float(), -1).half())
+    assert loss.dtype == torch.float32 and torch.isfinite(loss)
+    loss.backward()
+    assert torch.isfinite(logits.grad).all()
+    ref, _ = gaze_loss(gaze, torch.softmax(logits.detach().float(), -1).half().float())
+    torch.testing.assert_close(loss.detach(), ref)
+
+
+def test_bfloat16_attention_matches_float32_of_the_same_values():
+    gaze, attn = _dists(0), _dists(1).bfloat16()
+    loss, _ = gaze_loss(gaze, attn)
+    ref, _ = gaze_loss(gaze, attn.float())
+    assert loss.dtype == torch.float32
+    torch.testing.assert_close(loss, ref)
+
+
+@pytest.mark.parametrize("eps", [0.0, -1e-8, float("nan"), float("inf")])
+def test_a_non_positive_or_non_finite_eps_is_refused(eps):
+    with pytest.raises(ValueError, match="eps"):
+        gaze_loss(_dists(0), _dists(1), eps=eps)
+
+
+@pytest.mark.parametrize("weight", [float("nan"), float("inf"), -0.1])
+def test_a_non_finite_or_negative_weight_is_refused(weight):
+    with pytest.raises(ValueError, match="weight"):
+        WeightSchedule(weight)
+
+
+def test_grids_with_the_same_patch_count_but_another_shape_are_refused():
+    gaze, attn = _dists(0, n=64), _dists(1, n=64)
+    gaze_loss(gaze, attn, gaze_grid=(8, 8), attention_grid=(8, 8))
+    with pytest.raises(ValueError, match=r"gaze grid \(8, 8\) and attention grid \(4, 16\) differ"):
+        gaze_loss(gaze, attn, gaze_grid=(8, 8), attention_grid=(4, 16))
+    with pytest.raises(ValueError, match="does not hold"):
+        gaze_loss(gaze, attn, gaze_grid=(4, 8))

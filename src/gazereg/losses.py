@@ -25,17 +25,47 @@ def _kl(p: Tensor, q: Tensor, eps: float) -> Tensor:
     return torch.where(p > 0, p * (logp - logq), torch.zeros_like(p)).sum(-1)
 
 
+def check_eps(eps: float) -> float:
+    """eps must be a positive, finite float: the floor under the logarithm (0 would give log 0 = -inf)."""
+    if not (isinstance(eps, int | float) and math.isfinite(eps) and eps > 0):
+        raise ValueError(f"loss eps must be a positive finite number, got {eps!r}")
+    return float(eps)
+
+
+def check_grids(n: int, gaze_grid: tuple[int, int] | None, attention_grid: tuple[int, int] | None) -> None:
+    """Distributions with the same patch count on differently shaped grids (8x8 vs 4x16) are not comparable:
+    raise when the given grids differ or do not hold n patches."""
+    for name, grid in (("gaze", gaze_grid), ("attention", attention_grid)):
+        if grid is not None and grid[0] * grid[1] != n:
+            raise ValueError(f"{name} grid {tuple(grid)} does not hold the distributions' {n} patches")
+    if gaze_grid is not None and attention_grid is not None and tuple(gaze_grid) != tuple(attention_grid):
+        raise ValueError(
+            f"gaze grid {tuple(gaze_grid)} and attention grid {tuple(attention_grid)} differ: the gaze targets "
+            "were made for another patch geometry than the policy's"
+        )
+
+
+def compute_dtype(dtype: torch.dtype) -> torch.dtype:
+    """float32 for half-precision inputs (fp16/bf16 underflow the eps floor and overflow the log ratio),
+    float64 kept as it is."""
+    return torch.float64 if dtype == torch.float64 else torch.float32
+
+
 def gaze_kl(gaze: Tensor, attention: Tensor, kind: Divergence = "forward", eps: float = 1e-8) -> Tensor:
     """Per-sample divergence between gaze (B, N) and attention (B, N) distributions -> (B,).
 
     Inputs are renormalised over N (after clamping at 0) so small numerical drift cannot make the result
-    negative; values stay finite when either input has zeros."""
+    negative; values stay finite when either input has zeros. Computed in float32 (float64 for float64
+    attention) whatever the input dtype, so fp16/bf16 attention under autocast gives a finite loss and
+    finite gradients; the result has that compute dtype."""
     if gaze.shape != attention.shape:
         raise ValueError(
             f"gaze {tuple(gaze.shape)} and attention {tuple(attention.shape)} must have the same shape"
         )
-    g = gaze.detach().to(attention.dtype).clamp_min(0)
-    a = attention.clamp_min(0)
+    eps = check_eps(eps)
+    dtype = compute_dtype(attention.dtype)
+    g = gaze.detach().to(dtype).clamp_min(0)
+    a = attention.to(dtype).clamp_min(0)
     g = g / g.sum(-1, keepdim=True).clamp_min(eps)
     a = a / a.sum(-1, keepdim=True).clamp_min(eps)
     if kind == "forward":
@@ -56,6 +86,8 @@ def gaze_loss(
     valid: Tensor | None = None,
     kind: Divergence = "forward",
     eps: float = 1e-8,
+    gaze_grid: tuple[int, int] | None = None,
+    attention_grid: tuple[int, int] | None = None,
 ) -> tuple[Tensor, dict[str, float]]:
     """Mean divergence over valid samples.
 
@@ -63,10 +95,13 @@ def gaze_loss(
         gaze: (B, N) target distributions (no gradient).
         attention: (B, N) the policy's attention distributions (differentiable).
         valid: (B,) bool; invalid samples (no usable gaze) are excluded from the mean.
+        gaze_grid, attention_grid: (rows, cols) of the patch grids the two are row-major over; when given they
+            must hold N patches and agree (see `check_grids`).
     Returns:
         loss: scalar; exactly 0 (still attached to the graph) when no sample is valid.
         info: {"gaze/valid_frac", "gaze/no_valid"} for logging.
     """
+    check_grids(gaze.shape[-1], gaze_grid, attention_grid)
     if not torch.isfinite(gaze).all():
         raise ValueError("gaze distribution contains NaN or inf")
     if not torch.isfinite(attention).all():
@@ -98,8 +133,15 @@ class WeightSchedule:
     final_frac: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.weight < 0:
-            raise ValueError(f"gaze weight must be >= 0, got {self.weight}")
+        if not (math.isfinite(self.weight) and self.weight >= 0):
+            raise ValueError(f"gaze weight must be a finite number >= 0, got {self.weight}")
+        if self.warmup_steps < 0 or self.total_steps < 1:
+            raise ValueError(
+                f"gaze schedule needs warmup_steps >= 0 and total_steps >= 1, got {self.warmup_steps}, "
+                f"{self.total_steps}"
+            )
+        if not 0 <= self.final_frac <= 1:
+            raise ValueError(f"gaze schedule final_frac must be in [0, 1], got {self.final_frac}")
         if self.kind not in ("constant", "linear_warmup", "cosine"):
             raise ValueError(f"unknown schedule {self.kind!r}")
 
@@ -122,3 +164,6 @@ class GazeLossConfig:
     divergence: Divergence = "forward"
     schedule: WeightSchedule = WeightSchedule()
     eps: float = 1e-8
+
+    def __post_init__(self) -> None:
+        check_eps(self.eps)
