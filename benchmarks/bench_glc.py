@@ -21,7 +21,8 @@ from _timing import median_time
 from torch.utils.flop_counter import FlopCounterMode, sdpa_flop_count
 
 from gazereg.gaze.glc import GLC, GLCConfig
-from gazereg.training.glc import GLCTrainConfig, gaze_target_maps, glc_kl_loss, make_optimizer
+from gazereg.gaze.glc.targets import gaze_target_maps
+from gazereg.training.glc import GLCTrainConfig, glc_kl_loss, make_optimizer
 
 
 def _sdpa_cpu_flops(q_shape, k_shape, v_shape, *args, out_shape=None, **kwargs) -> int:

@@ -19,20 +19,19 @@ import os
 import platform
 import statistics
 import time
+from pathlib import Path
 
 import torch
 
 from gazereg.gaze.aggregation import AggregationConfig, aggregate
 from gazereg.gaze.glc.data import synthetic_gaze_episode
-from gazereg.gaze.sources.glc import GLCGaze
+from gazereg.gaze.sources.glc import GLCGaze, GLCParams
 
 
 def bench(
     config: str, mode: str, frames: int, repeat: int, batch_size: int = 8, stride: int = 2, hop: int = 4
 ) -> dict:
-    src = GLCGaze(
-        checkpoint="random", config=config, stride=stride, mode=mode, hop=hop, batch_size=batch_size
-    )
+    src = GLCGaze(GLCParams(Path("random"), config, stride=stride, mode=mode, hop=hop, batch_size=batch_size))
     ep = synthetic_gaze_episode(length=frames, size=96, camera="cam", seed=0)
     n = len(src.plan(frames)[0])
     sizes = [min(batch_size, n - s) for s in range(0, n, batch_size)]

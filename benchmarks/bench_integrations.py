@@ -17,11 +17,15 @@ import platform
 import statistics
 import sys
 import time
+from pathlib import Path
 
 import torch
 
-from gazereg.integrations.tiny import tiny_batch, tiny_model
 from gazereg.integrations.transformers import GazeRegularizer
+
+# the tiny random models of the integration tests (built from configs, no hub access)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "integrations"))
+from tiny_models import tiny_batch, tiny_model  # noqa: E402
 
 SIZES = {
     # family: tiny_model kwargs; 2 cameras each

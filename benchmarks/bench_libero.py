@@ -117,7 +117,7 @@ def main() -> int:
     ap.add_argument("--expert-noise", type=float, default=0.0)
     ap.add_argument("--expert-max-steps", type=int, default=300)
     args = ap.parse_args()
-    from gazereg.envs.libero.env import libero_available
+    from gazereg.envs.libero.setup import libero_available
 
     ok, why = libero_available()
     if not ok:

@@ -66,8 +66,10 @@ def main() -> int:
     ap.add_argument("--image-size", type=int, default=96, help="collection image size")
     args = ap.parse_args()
 
-    from gazereg.envs.collect import CollectConfig, available_cores, collect
+    from gazereg.envs.collect import collect
+    from gazereg.envs.collect_config import CollectConfig
     from gazereg.envs.render import select_gl_backend
+    from gazereg.runtime.pool import available_cores
 
     backend = select_gl_backend()
     result: dict = {
@@ -112,7 +114,7 @@ def main() -> int:
         report = collect(cfg)
         wall = time.perf_counter() - t0
         attempts = [
-            json.loads(x)
+            json.loads(x)["record"]
             for x in (Path(tmp) / "demos" / "collect" / "attempts.jsonl").read_text().splitlines()
         ]
         rollout_s = sum(a["seconds"] for a in attempts)

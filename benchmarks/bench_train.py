@@ -66,7 +66,7 @@ def make_policy(seed: int = 0) -> VLAPolicy:
     torch.manual_seed(seed)
     base = VLAConfig()
     tok = Tokenizer.build(["reach the goal"], max_len=base.max_text_len)
-    cfg = base.resolve(
+    cfg = VLAConfig(
         cameras=("corner2",), camera_hw=((96, 96),), state_dim=4, action_dim=4, vocab_size=tok.vocab_size
     )
     return VLAPolicy(cfg, tok)

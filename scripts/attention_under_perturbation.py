@@ -19,7 +19,8 @@ import torch
 
 from gazereg.data.dataset import EpisodeDataset
 from gazereg.data.store import EpisodeStore
-from gazereg.envs.collect import CollectConfig, collect
+from gazereg.envs.collect import collect
+from gazereg.envs.collect_config import CollectConfig
 from gazereg.evaluation.alignment import attention_maps, attention_shift
 from gazereg.policies import load_policy
 from gazereg.runtime.io import atomic_write_json, atomic_write_text

@@ -3,16 +3,19 @@
 import pytest
 
 import gazereg.evaluation.rollout as ev
+from gazereg.evaluation.config import EvalConfig, presets
 
 
-@pytest.fixture
-def fake_rollouts(monkeypatch):
-    calls = []
+class FakeWorker:
+    """Records the jobs it runs; a job whose seed is in `fail_on` is killed."""
 
-    def run(job):
-        if job.seed in fail_on:
+    def __init__(self, calls, fail_on):
+        self.calls, self.fail_on = calls, fail_on
+
+    def run(self, job):
+        if job.seed in self.fail_on:
             raise KeyboardInterrupt("killed")
-        calls.append((job.arm, job.seed))
+        self.calls.append((job.arm, job.seed))
         return {
             "arm": job.arm,
             "task": job.task,
@@ -22,10 +25,20 @@ def fake_rollouts(monkeypatch):
             "length": 7,
         }
 
+    def close(self):
+        pass
+
+
+@pytest.fixture
+def fake_rollouts():
+    calls: list[tuple[str, int]] = []
     fail_on: set[int] = set()
-    monkeypatch.setattr(ev, "_init_worker", lambda *a, **k: None)
-    monkeypatch.setattr(ev, "_run_job", run)
-    return calls, fail_on
+    return calls, fail_on, lambda: FakeWorker(calls, fail_on)
+
+
+def _run(jobs, max_steps, log_path, make_worker):
+    cfg = EvalConfig(max_steps=max_steps, workers=1)
+    return ev.run_jobs(jobs, cfg, progress=False, log_path=log_path, make_worker=make_worker)
 
 
 def _jobs(ckpt, seeds):
@@ -33,7 +46,7 @@ def _jobs(ckpt, seeds):
 
 
 def test_killed_evaluation_resumes_from_log(tmp_path, fake_rollouts):
-    calls, fail_on = fake_rollouts
+    calls, fail_on, worker = fake_rollouts
     ckpt = tmp_path / "ckpt"
     ckpt.mkdir()
     (ckpt / "model.safetensors").write_bytes(b"weights")
@@ -42,32 +55,32 @@ def test_killed_evaluation_resumes_from_log(tmp_path, fake_rollouts):
 
     fail_on.add(3)
     with pytest.raises(KeyboardInterrupt):
-        ev.run_jobs(jobs, 1, 10, None, progress=False, log_path=log_path)
+        _run(jobs, 10, log_path, worker)
     assert calls == [("a", 0), ("a", 1), ("a", 2)]
     with log_path.open("a") as f:
         f.write('{"key": "cut sho')  # a line the kill cut short
 
     fail_on.clear()
     calls.clear()
-    records = ev.run_jobs(jobs, 1, 10, None, progress=False, log_path=log_path)
+    records = _run(jobs, 10, log_path, worker)
     assert calls == [("a", 3)]
     assert [r["seed"] for r in records] == [0, 1, 2, 3]
     assert [r["success"] for r in records] == [True, False, True, False]
 
     # Same jobs with other max_steps, or a rewritten checkpoint: nothing is reused.
     calls.clear()
-    ev.run_jobs(jobs[:1], 1, 11, None, progress=False, log_path=log_path)
+    _run(jobs[:1], 11, log_path, worker)
     assert calls == [("a", 0)]
     calls.clear()
     (ckpt / "model.safetensors").write_bytes(b"other weights")
-    ev.run_jobs(jobs[:2], 1, 10, None, progress=False, log_path=log_path)
+    _run(jobs[:2], 10, log_path, worker)
     assert calls == [("a", 0), ("a", 1)]
 
 
 def test_libero_preset_avoids_demo_states_and_video_names_are_flat(tmp_path):
     from dataclasses import replace
 
-    cfg = replace(ev.presets()["libero"](), out=tmp_path, videos=1)
+    cfg = replace(presets()["libero"](), out=tmp_path, videos=1)
     assert cfg.env == "libero" and len(cfg.tasks) == 10
     assert all((cfg.seed_start + i) % 50 >= 25 for i in range(cfg.episodes))  # initial states 25..49
     jobs = ev.make_jobs(cfg, {"gaze": tmp_path / "ckpt"})

@@ -78,8 +78,27 @@ def test_every_experiment_makes_the_gaze_prior_that_alignment_measures_against(t
     from gazereg.experiment.config import smoke
 
     def needed(*arms):
-        return [name for name, _, _ in Experiment(replace(smoke(), arms=arms, out=tmp_path)).priors_needed()]
+        return [prior.name for prior in Experiment(replace(smoke(), arms=arms, out=tmp_path)).priors_needed()]
 
     assert needed("baseline") == ["visuomotor"]  # nothing to train on, but the align stage reads it
     assert needed("baseline", "gaze", "perturbed") == ["visuomotor", "visuomotor-shuffled"]
     assert needed("baseline", "blobs") == ["visuomotor", "blobs"]
+
+
+def test_glc_arm_uses_a_given_checkpoint_or_the_one_it_trains(tmp_path):
+    from dataclasses import replace
+
+    from gazereg.experiment.config import arm_prior, smoke, trains_glc
+    from gazereg.gaze.sources.glc import GLCParams
+    from gazereg.gaze.sources.perturbed import PerturbedParams
+
+    cfg = replace(smoke(), out=tmp_path)
+    assert trains_glc(cfg) and arm_prior("glc", cfg).source == GLCParams(
+        checkpoint=tmp_path / "glc" / "final"
+    )
+    given = replace(cfg, glc=GLCParams(checkpoint=tmp_path / "mine", stride=1))
+    assert not trains_glc(given) and arm_prior("glc", given).source == given.glc
+    assert arm_prior("perturbed", cfg).source == PerturbedParams(mode="shuffle", base="visuomotor")
+    assert arm_prior("baseline", cfg) is None
+    with pytest.raises(KeyError, match="unknown arm 'nope'"):
+        arm_prior("nope", cfg)

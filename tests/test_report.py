@@ -2,7 +2,7 @@ import json
 
 import pytest
 
-from gazereg.evaluation.rollout import format_table, summarize
+from gazereg.evaluation.summary import format_table, summarize
 from gazereg.report import (
     convergence,
     distance_table,
@@ -10,9 +10,8 @@ from gazereg.report import (
     paired_distance_tests,
     paired_tests,
     per_seed_table,
-    readme_block,
+    results_block,
     success_table,
-    update_readme,
     verdict,
 )
 
@@ -109,7 +108,7 @@ def test_eval_summary_and_table():
     assert "| a |" in format_table(s)
 
 
-def test_markdown_and_readme_block(tmp_path):
+def test_markdown_and_results_block():
     recs = records("baseline@s0", [1, 0]) + records("gaze@s0", [1, 1])
     success = success_table(recs)
     report = {
@@ -139,29 +138,19 @@ def test_markdown_and_readme_block(tmp_path):
     report["val_loss"] = {"baseline@s0": 0.2, "baseline@s1": 0.1, "gaze@s0": 0.05, "gaze@s1": None}
     assert "| baseline | 0.2000 | 0.1000 | 0.1500 |" in markdown(report)
     assert "| gaze | 0.0500 | - | 0.0500 |" in markdown(report)
-    run = tmp_path / "run"
-    (run / "figures").mkdir(parents=True)
-    (run / "figures" / "attention.png").write_bytes(b"png")
-    (run / "report.json").write_text(json.dumps(report))
-    readme = tmp_path / "README.md"
-    readme.write_text("# x\n<!-- quick-results:start -->\nold\n<!-- quick-results:end -->\nend\n")
-    update_readme(readme, run, tmp_path / "docs")
-    text = readme.read_text()
-    assert "old" not in text and "| gaze | 2/2 = 1.00" in text and text.endswith("end\n")
-    assert (tmp_path / "docs" / "quick-results-attention.png").exists()
-    assert "attention" in readme_block(report, "f.png")
+    assert "attention" in results_block(report, "f.png")
     report["train"]["seeds"] = [0, 1]  # a multi-seed run's block carries the paired table, read from JSON
     reloaded = json.loads(json.dumps(report, sort_keys=True))
-    assert "| gaze vs baseline | clean | 2 | 1 | 0 |" in readme_block(reloaded, "f.png")
+    assert "| gaze vs baseline | clean | 2 | 1 | 0 |" in results_block(reloaded, "f.png")
     report["per_seed"] = per_seed_table(recs)
     assert report["per_seed"] == {"baseline@s0": {"clean": [1, 2]}, "gaze@s0": {"clean": [2, 2]}}
-    assert "| gaze@s0 | 2/2 |" in readme_block(report, "f.png") and "| baseline@s0 | 1/2 |" in markdown(
+    assert "| gaze@s0 | 2/2 |" in results_block(report, "f.png") and "| baseline@s0 | 1/2 |" in markdown(
         report
     )
 
 
 def test_eval_worker_rejects_an_unknown_simulator():
-    from gazereg.evaluation.rollout import Worker
+    from gazereg.evaluation.rollout import RolloutWorker as Worker
 
     with pytest.raises(ValueError, match="unknown simulator 'gazebo'"):
         Worker(max_steps=10, gl_backend=None, env="gazebo")

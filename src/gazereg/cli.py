@@ -9,6 +9,7 @@ from __future__ import annotations
 import sys
 
 from gazereg.runtime.subcommands import Subcommands
+from gazereg.runtime.version import __version__
 
 # name -> ("module:function", one-line help). Only subcommands whose module is installed are offered.
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -32,7 +33,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     ),
     "glc": ("gazereg.gaze.glc.cli:main", "train / evaluate the GLC video gaze estimator"),
     "import": (
-        "gazereg.data.importers:main",
+        "gazereg.data.cli:main",
         "import LeRobot v3 or HDF5 demonstrations into an episode store",
     ),
     "viz": ("gazereg.viz.cli:main", "draw episodes with their gaze and attention"),
@@ -50,8 +51,6 @@ COMMANDS = Subcommands(
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["--version"]:
-        from gazereg.runtime.version import __version__
-
         print(__version__)
         return 0
     return COMMANDS.main(argv)

@@ -8,9 +8,10 @@ import pytest
 
 h5py = pytest.importorskip("h5py")
 
-from gazereg.data import importers  # noqa: E402
-from gazereg.data.formats.hdf5 import Hdf5ImportConfig, import_hdf5, instruction_from_filename  # noqa: E402
-from gazereg.data.importers import DataImportError  # noqa: E402
+from gazereg.data import cli as data_cli  # noqa: E402
+from gazereg.data.errors import DataImportError  # noqa: E402
+from gazereg.data.formats.hdf5 import Hdf5ImportConfig, import_hdf5  # noqa: E402
+from gazereg.data.formats.hdf5.demos import instruction_from_filename  # noqa: E402
 from gazereg.data.store import EpisodeStore  # noqa: E402
 
 HW = (24, 32)
@@ -212,10 +213,10 @@ def test_missing_camera_and_corrupt_files(tmp_path):
 
 def test_cli(tmp_path, capsys):
     src = write_libero(tmp_path / "put_the_bowl_on_the_plate_demo.hdf5", lengths=(3,))
-    assert importers.main(["hdf5", "--file", str(src), "--out", str(tmp_path / "s"), "--no-progress"]) == 0
+    assert data_cli.main(["hdf5", "--file", str(src), "--out", str(tmp_path / "s"), "--no-progress"]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["imported"] == 1
     assert (
-        importers.main(["hdf5", "--file", str(tmp_path / "missing.hdf5"), "--out", str(tmp_path / "s")]) == 1
+        data_cli.main(["hdf5", "--file", str(tmp_path / "missing.hdf5"), "--out", str(tmp_path / "s")]) == 1
     )
     assert "missing.hdf5 does not exist" in capsys.readouterr().err
 

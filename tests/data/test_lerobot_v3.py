@@ -12,11 +12,12 @@ pytest.importorskip("av")
 pa = pytest.importorskip("pyarrow")
 pq = pytest.importorskip("pyarrow.parquet")
 
-from gazereg.data import importers  # noqa: E402
+from gazereg.data import cli as data_cli  # noqa: E402
+from gazereg.data.errors import DataExportError, DataImportError  # noqa: E402
+from gazereg.data.export import parse_episode_map  # noqa: E402
 from gazereg.data.formats.lerobot_v3 import LeRobotImportConfig, LeRobotV3Dataset, import_lerobot  # noqa: E402
 from gazereg.data.formats.lerobot_v3.export import export_priors_lerobot, read_priors_lerobot  # noqa: E402
 from gazereg.data.formats.video import VideoFile  # noqa: E402
-from gazereg.data.importers import DataImportError  # noqa: E402
 from gazereg.data.store import EpisodeStore  # noqa: E402
 from gazereg.gaze.aggregation import AggregationConfig  # noqa: E402
 from gazereg.gaze.priors import PriorsConfig, make_priors  # noqa: E402
@@ -298,13 +299,18 @@ def test_export_undoes_import_rotation_and_episode_map(tmp_path):
     assert set(m.episode_index.tolist()) == {7}
     with pytest.raises(FileNotFoundError, match="no priors named 'nope'"):
         export_priors_lerobot(plain, "nope", tmp_path / "x")
+    with pytest.raises(DataExportError, match="no 'recorded' priors to export for the given episode map"):
+        export_priors_lerobot(plain, "recorded", tmp_path / "d", episode_map={5: 7})
+    assert parse_episode_map(("0=7", "2=9")) == {0: 7, 2: 9} and parse_episode_map(()) is None
+    with pytest.raises(DataExportError, match="store_index=episode_index"):
+        parse_episode_map(("0:7",))
 
 
 # ----- CLI ---------------------------------------------------------------------------------------------
 def test_cli_import_and_export(tmp_path, capsys):
     out = tmp_path / "s"
     assert (
-        importers.main(
+        data_cli.main(
             [
                 "lerobot",
                 "--root",
@@ -323,16 +329,16 @@ def test_cli_import_and_export(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["imported"] == 1
     _recorded_priors(out)
     assert (
-        importers.main(
+        data_cli.main(
             ["export-priors", "--store", str(out), "--prior", "recorded", "--out", str(tmp_path / "x")]
         )
         == 0
     )
     assert (tmp_path / "x" / "priors.json").exists()
-    assert importers.main(["lerobot", "--root", str(tmp_path / "missing"), "--out", str(out)]) == 1
+    assert data_cli.main(["lerobot", "--root", str(tmp_path / "missing"), "--out", str(out)]) == 1
     assert "not a LeRobot data set" in capsys.readouterr().err
-    assert importers.main(["nope"]) == 2
-    assert importers.main(["--help"]) == 0
+    assert data_cli.main(["nope"]) == 2
+    assert data_cli.main(["--help"]) == 0
 
 
 # ----- a synthetic data set: H.264, episodes spread over two video files ---------------------------------

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gazereg.envs.collect import CollectConfig, CollectError, _split_lists, collect, episode_index, main
+from gazereg.envs.collect import _split_lists, collect, main
+from gazereg.envs.collect_config import CollectConfig, CollectError, episode_index
 
 
 def test_comma_lists_are_split():
@@ -139,7 +140,7 @@ def test_failures_are_reported_not_stored(tmp_path, gl_backend):
     assert set(report.tasks["pick-place-v3"]["failed_seeds"]) == {"0", "1"}
     assert len(EpisodeStore(tmp_path)) == 0
     lines = (tmp_path / "collect" / "attempts.jsonl").read_text().splitlines()
-    assert [json.loads(x)["success"] for x in lines] == [False, False]
+    assert [json.loads(x)["record"]["success"] for x in lines] == [False, False]
     # a rerun with the same settings does not retry the seeds that failed
     again = collect(cfg)
     assert "skipped" in again.tasks["pick-place-v3"]["failed_seeds"]["0"]
@@ -202,7 +203,7 @@ def test_parallel_workers_give_the_same_episodes(tmp_path, gl_backend):
 def test_perturbed_collection_is_the_same_episode_under_other_light(tmp_path, gl_backend):
     """dim:0.7 renders the same setups and expert actions as clean, only darker, into a store of its own."""
     from gazereg.data.store import EpisodeStore
-    from gazereg.envs.collect import fingerprint, resolve
+    from gazereg.envs.collect_config import fingerprint, resolve
 
     common = dict(
         tasks=("reach-v3",), episodes=1, image_size=32, workers=1, progress=False, gl_backend=gl_backend

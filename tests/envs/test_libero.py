@@ -139,7 +139,8 @@ def test_expert_grasps_and_places_the_bowl():
 
 @pytest.mark.parametrize("suite", ["libero_object", "libero_goal", "libero_10"])
 def test_every_suite_resets_and_steps(suite):
-    from gazereg.envs.libero.env import SUITE_MAX_STEPS, LiberoEnv
+    from gazereg.envs.libero.env import LiberoEnv
+    from gazereg.envs.libero.setup import SUITE_MAX_STEPS
 
     e = LiberoEnv(f"{suite}/1", cameras=("agentview",), image_size=64, settle_steps=1)
     try:

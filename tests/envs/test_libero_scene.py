@@ -90,3 +90,46 @@ def test_decimation_keeps_each_faces_texture_coordinates():
     np.testing.assert_allclose(v[f[0]][:, :2].sum(), 2.0005, atol=1e-3)  # the merged corner is the mean
     _, _, none, _ = decimate_with_texcoords(vert, face, None, cell=0.01)
     assert none is None
+
+
+def test_quaternion_to_axis_angle_matches_the_rotation():
+    from gazereg.envs.libero.scene import quat_xyzw_to_axis_angle
+
+    half = np.radians(90) / 2  # 90 degrees about z
+    np.testing.assert_allclose(
+        quat_xyzw_to_axis_angle(np.array([0, 0, np.sin(half), np.cos(half)])), [0, 0, np.pi / 2], atol=1e-12
+    )
+    np.testing.assert_array_equal(quat_xyzw_to_axis_angle(np.array([0.0, 0.0, 0.0, 1.0])), np.zeros(3))
+
+
+def test_camera_names_and_aliases_resolve_to_ids():
+    mujoco = pytest.importorskip("mujoco")
+    from gazereg.envs.libero.render import camera_ids
+
+    model = mujoco.MjModel.from_xml_string(
+        "<mujoco><worldbody><camera name='agentview'/><camera name='robot0_eye_in_hand'/></worldbody></mujoco>"
+    )
+    assert camera_ids(model, ("agentview_rgb", "wrist", "agentview")) == {
+        "agentview_rgb": 0,
+        "wrist": 1,
+        "agentview": 0,
+    }
+    with pytest.raises(KeyError, match="no camera 'side'.*'agentview', 'robot0_eye_in_hand'"):
+        camera_ids(model, ("side",))
+
+
+def test_clear_transients_zeroes_what_a_soft_reset_keeps():
+    from types import SimpleNamespace
+
+    from gazereg.envs.libero.setup import clear_transients
+
+    goals = []
+    robot = SimpleNamespace(
+        gripper=SimpleNamespace(current_action=np.ones(2)),
+        controller=SimpleNamespace(reset_goal=lambda: goals.append(1)),
+    )
+    fields = ("ctrl", "act", "qacc_warmstart", "qfrc_applied", "xfrc_applied")
+    data = SimpleNamespace(**{name: np.ones(3) for name in fields})
+    clear_transients(SimpleNamespace(robots=[robot]), data)
+    assert not robot.gripper.current_action.any() and goals == [1]
+    assert all(not getattr(data, name).any() for name in fields)

@@ -1,9 +1,14 @@
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from gazereg.data.store import Episode, EpisodeStore
-from gazereg.gaze.priors import PriorsConfig, make_priors, parse_params
-from gazereg.gaze.sources import available_gaze_sources, make_gaze_source
+from gazereg.gaze.priors import PriorsCommand, PriorsConfig, main, make_priors
+from gazereg.gaze.sources import available_gaze_sources, make_gaze_source, parse_source_params
+from gazereg.gaze.sources.glc import GLCParams
+from gazereg.gaze.sources.perturbed import PerturbedParams
+from gazereg.gaze.sources.visuomotor import VisuomotorParams
 
 
 def square_episode(T=6, hw=(32, 32), pos=(0.25, 0.75)):
@@ -85,12 +90,11 @@ def test_perturbed_controls(store, mode):
     make_priors(
         PriorsConfig(store=store.root, source="recorded", camera="cam", size=(16, 16)), progress=False
     )
-    params = (f"mode={mode}", "base=recorded", "block=4")
+    params = PerturbedParams(mode=mode, base="recorded", block=4)
     make_priors(
         PriorsConfig(
             store=store.root,
-            source="perturbed",
-            source_params=params,
+            source=params,
             name=f"p_{mode}",
             camera="cam",
             size=(16, 16),
@@ -106,7 +110,51 @@ def test_perturbed_controls(store, mode):
         assert not np.allclose(pert[0], base[0])
 
 
-def test_parse_params():
-    assert parse_params(["a=1", "b=x", "c=[1,2]"]) == {"a": 1, "b": "x", "c": [1, 2]}
+def test_source_params_from_the_command_line_are_typed_once():
+    assert parse_source_params("perturbed", ["mode=blobs", "block=4"]) == PerturbedParams(
+        mode="blobs", block=4
+    )
+    glc = parse_source_params("glc", ["checkpoint=runs/glc/final", "stride=1", "temperature=null"])
+    assert glc == GLCParams(checkpoint=Path("runs/glc/final"), stride=1, temperature=None)
+    vm = parse_source_params("visuomotor", ["targets=obj,goal", "fps=80"])
+    assert vm == VisuomotorParams(targets=("obj", "goal"), fps=80.0)
+    assert parse_source_params("visuomotor", ['targets=["goal"]']).targets == ("goal",)
     with pytest.raises(ValueError, match="key=value"):
-        parse_params(["oops"])
+        parse_source_params("glc", ["oops"])
+    with pytest.raises(
+        ValueError, match="has no parameter 'strid'; its parameters: checkpoint, config, stride"
+    ):
+        parse_source_params("glc", ["strid=1"])
+    with pytest.raises(ValueError, match="bad value stride='two': expected an integer"):
+        parse_source_params("glc", ["stride=two"])
+    with pytest.raises(ValueError, match="bad value mode='middle': choose one of centre, average"):
+        parse_source_params("glc", ["mode=middle"])
+    with pytest.raises(KeyError, match="unknown gaze source 'nope'"):
+        parse_source_params("nope", [])
+
+
+def test_params_are_checked_when_made():
+    with pytest.raises(ValueError, match="jitter_rho"):
+        VisuomotorParams(jitter_rho=1.0)
+    with pytest.raises(ValueError, match="unknown perturbation"):
+        PerturbedParams(mode="flip")  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="once"):
+        make_gaze_source(VisuomotorParams(), jitter=0.0)
+    assert make_gaze_source(VisuomotorParams(jitter=0.0)).describe()["jitter"] == 0.0
+
+
+def test_priors_command_converts_its_text_parameters(store, capsys):
+    cmd = PriorsCommand(store=store.root, source="perturbed", source_params=("mode=blobs",), name="b")
+    assert cmd.config().source == PerturbedParams(mode="blobs") and cmd.config().name == "b"
+    argv = [
+        "--store",
+        str(store.root),
+        "--source",
+        "uniform",
+        "--source-params",
+        "sigma=1",
+        "--camera",
+        "cam",
+    ]
+    assert main(argv) == 2
+    assert "gaze source 'uniform' has no parameter 'sigma'" in capsys.readouterr().err

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -68,7 +70,7 @@ def test_object_before_contact_goal_after():
     tr = src.trace(ep, CAM)
     # contact at 30; the puck comes within arrive_radius (3 cm) of the goal at 57 (success would be at 60)
     assert tr.targets == ("obj", "goal") and tr.arrivals == (30, 57)
-    assert src.__class__(arrive_radius=0.0).trace(ep, CAM).arrivals == (30, 60)
+    assert make_gaze_source(replace(src.params, arrive_radius=0.0)).trace(ep, CAM).arrivals == (30, 60)
     s = tr.switches[1]
     assert s == 30 + 4  # dwell: 0.05 s at 80 fps
     np.testing.assert_allclose(tr.uv[:s], ep.extras[f"obj_uv.{CAM}"][:s], atol=1e-6)
@@ -149,7 +151,7 @@ def test_on_a_real_pick_place_demonstration():
     """In a collected Meta-World episode, the gaze is on the puck until the grasp and near the goal after."""
     pytest.importorskip("metaworld")
     from gazereg.envs import MetaWorldEnv
-    from gazereg.envs.collect import rollout_expert
+    from gazereg.envs.metaworld.collector import rollout_expert
     from gazereg.envs.render import select_gl_backend
 
     env = MetaWorldEnv("pick-place-v3", cameras=("corner2",), image_size=96, gl_backend=select_gl_backend())

@@ -12,9 +12,9 @@ from gazereg.gaze.glc.data import (
     StoreClipDataset,
     episode_gaze_points,
     fixation_mask,
-    split_episodes,
     write_synthetic_gaze_store,
 )
+from gazereg.gaze.glc.evaluate import HoldoutSplit, holdout_split
 
 
 @pytest.fixture(scope="module")
@@ -26,10 +26,10 @@ def store(tmp_path_factory):
 
 def test_split_is_deterministic_and_per_task(tmp_path):
     s = write_synthetic_gaze_store(tmp_path / "s", episodes=6, length=2, size=8, camera="cam", tasks=2)
-    assert split_episodes(s, holdout_every=3) == {"train": [0, 1, 2, 3], "heldout": [4, 5]}
-    assert split_episodes(s, holdout=(1,)) == {"train": [0, 2, 3, 4, 5], "heldout": [1]}
+    assert holdout_split(s, holdout_every=3) == HoldoutSplit(train=(0, 1, 2, 3), heldout=(4, 5))
+    assert holdout_split(s, holdout=(1,)).to_dict() == {"train": [0, 2, 3, 4, 5], "heldout": [1]}
     with pytest.raises(KeyError):
-        split_episodes(s, holdout=(9,))
+        holdout_split(s, holdout=(9,))
 
 
 def test_dataset_items_and_gaze(store):
@@ -111,9 +111,11 @@ def test_train_and_eval_commands_write_their_outputs(store, tmp_path, capsys):
     assert "centre_prior" in capsys.readouterr().out
 
 
-def test_cli_usage_and_errors(tmp_path, store):
+def test_cli_usage_and_errors(tmp_path, store, capsys):
     assert main([]) == 0
+    assert capsys.readouterr().out.startswith("usage: gazereg glc <train|eval> [--preset NAME] [options]\n")
     assert main(["bogus"]) == 2
+    assert "gazereg glc: unknown subcommand 'bogus'" in capsys.readouterr().err
     with pytest.raises(FileNotFoundError):
         main(["eval", "--store", str(store.root), "--checkpoint", str(tmp_path / "missing")])
 
@@ -141,3 +143,41 @@ def test_gaze_points_from_a_trace_or_from_map_peaks(store):
     assert valid.tolist() == ok.tolist() and np.isnan(pts[3]).all() and np.allclose(pts[0], [0.25, 0.75])
     pts, valid = episode_gaze_points(ep, "cam", MapsOnly())
     assert valid.all() and np.allclose(pts[0], [16.5 / 64, 48.5 / 64])
+
+
+def test_library_training_returns_a_typed_result(store, tmp_path):
+    from dataclasses import replace
+
+    from gazereg.gaze.sources.recorded import RecordedParams
+    from gazereg.training.glc_store import GLCStoreTrainConfig, train_glc_on_store
+
+    base = GLCStoreTrainConfig()
+    cfg = replace(
+        base,
+        store=store.root,
+        camera="cam",
+        gaze=RecordedParams(),
+        out=tmp_path / "lib",
+        holdout=(3,),
+        optim=replace(base.optim, steps=1, batch_size=2, warmup_steps=1),
+        evaluate=False,
+    )
+    result = train_glc_on_store(cfg)
+    assert result.steps == 1 and result.final == tmp_path / "lib" / "final"
+    assert result.split == HoldoutSplit(train=(0, 1, 2), heldout=(3,))
+    assert result.eval_path is None and result.eval_report is None and result.first_loss is not None
+    run = json.loads((tmp_path / "lib" / "run.json").read_text())
+    assert run["gaze_source"] == "recorded" and run["gaze_params"] == []
+    assert train_glc_on_store(cfg).first_loss is None  # finished: a second call resumes and trains nothing
+
+
+def test_gaze_params_are_recorded_as_text_that_reads_back():
+    from gazereg.gaze.sources import parse_source_params
+    from gazereg.gaze.sources.visuomotor import VisuomotorParams
+    from gazereg.training.glc_store import source_params_text
+
+    assert source_params_text(VisuomotorParams()) == ()
+    params = VisuomotorParams(lead_time_s=0.4, targets=("a", "b"), fps=None, seed=3)
+    text = source_params_text(params)
+    assert text == ("lead_time_s=0.4", 'targets=["a", "b"]', "seed=3")
+    assert parse_source_params("visuomotor", text) == params

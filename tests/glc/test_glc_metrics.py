@@ -17,6 +17,7 @@ from gazereg.gaze.glc.metrics import (
     minmax_normalize,
     uniform_maps,
 )
+from gazereg.gaze.glc.targets import gaze_target_maps
 
 
 def _gt_block() -> np.ndarray:
@@ -119,8 +120,6 @@ def test_baselines_give_a_floor():
 
 
 def test_perfect_prediction_scores_high():
-    from gazereg.training.glc import gaze_target_maps
-
     g = torch.Generator().manual_seed(1)
     gaze = 0.2 + 0.6 * torch.rand(3, 4, 2, generator=g)
     valid = torch.ones(3, 4, dtype=torch.bool)

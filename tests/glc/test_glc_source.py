@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,7 +23,7 @@ from gazereg.gaze.glc.data import (
 from gazereg.gaze.glc.model import frame_softmax
 from gazereg.gaze.priors import PriorsConfig, make_priors
 from gazereg.gaze.sources import make_gaze_source
-from gazereg.gaze.sources.glc import GLCGaze, to_frame
+from gazereg.gaze.sources.glc import GLCGaze, GLCParams, to_frame
 
 
 @pytest.fixture(scope="module")
@@ -84,7 +85,7 @@ def test_source_centre_mode_gives_distributions_from_the_centre_clip(source, epi
 
 
 def test_average_mode_is_the_mean_of_overlapping_clip_maps(source, episode):
-    src = GLCGaze(checkpoint="random", config="small", stride=2, mode="average", hop=2, batch_size=3)
+    src = GLCGaze(GLCParams(Path("random"), "small", stride=2, mode="average", hop=2, batch_size=3))
     src.model.load_state_dict(source.model.state_dict())
     frames = episode.frames["cam"]
     T = frames.shape[0]
@@ -145,11 +146,11 @@ def test_folder_checkpoint_and_priors_pipeline(tmp_path, source):
     assert src.describe()["checkpoint_sha256"] and src.describe()["config"] == "small"
     ep = store.read(0)
     a, _ = src(ep, "cam", (8, 8))
-    source_same = GLCGaze(checkpoint="random", config="small", stride=1, mode="centre")
+    source_same = GLCGaze(GLCParams(Path("random"), "small", stride=1, mode="centre"))
     source_same.model.load_state_dict(source.model.state_dict())
     np.testing.assert_allclose(a, source_same(ep, "cam", (8, 8))[0], atol=1e-6)
-    params = (f"checkpoint={folder}", "stride=1", "mode=centre")
-    cfg = PriorsConfig(store=store.root, source="glc", source_params=params, camera="cam", size=(8, 8))
+    params = GLCParams(checkpoint=folder, stride=1, mode="centre")
+    cfg = PriorsConfig(store=store.root, source=params, camera="cam", size=(8, 8))
     assert make_priors(cfg, progress=False) == "glc"
     heat, valid = store.read_prior("glc", 1)
     assert heat.shape == (7, 8, 8) and valid.all()

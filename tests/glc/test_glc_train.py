@@ -10,15 +10,11 @@ import pytest
 import torch
 
 from gazereg.gaze.glc import GLC, GLCConfig
-from gazereg.training.glc import (
-    GLCTrainConfig,
-    evaluate_loss,
-    gaze_target_maps,
-    glc_kl_loss,
-    lr_at,
-    moving_dot_clips,
-    train_glc,
-)
+from gazereg.gaze.glc.checkpoint import load_glc
+from gazereg.gaze.glc.targets import gaze_target_maps
+from gazereg.training.checkpoint import latest_checkpoint
+from gazereg.training.glc import GLCTrainConfig, evaluate_loss, glc_kl_loss, lr_at, train_glc
+from gazereg.training.glc_data import moving_dot_clips
 
 # a CPU-second-sized GLC: 8x64x64 clips -> 8x16x16 maps, one q-stride stage
 TINY = GLCConfig(
@@ -110,14 +106,20 @@ def test_training_lowers_loss(tmp_path, dots):
     before = evaluate_loss(GLC(TINY), dots)
     model, cfg, out = _run(tmp_path / "run", dots, steps=12)
     after = evaluate_loss(model, dots)
-    assert out["step"] == 12 and len(out["losses"]) == 12
+    assert out.step == 12 and len(out.losses) == 12
     assert after < 0.5 * before, (before, after)
     log = [json.loads(line) for line in (tmp_path / "run" / "train_log.jsonl").read_text().splitlines()]
     assert [r["step"] for r in log] == [2, 4, 6, 8, 10, 12]
     ckpts = sorted(p.name for p in (tmp_path / "run" / "checkpoints").iterdir())
-    assert ckpts == ["step_00000008", "step_00000012"]  # keep_last = 2
-    files = sorted(p.name for p in (tmp_path / "run" / "checkpoints" / "step_00000012").iterdir())
-    assert files == ["config.json", "model.safetensors", "optimizer.safetensors", "trainer_state.json"]
+    assert ckpts == ["step_000008", "step_000012"]  # keep_last = 2
+    last = tmp_path / "run" / "checkpoints" / "step_000012"
+    assert out.checkpoint == last == latest_checkpoint(tmp_path / "run")
+    assert sorted(p.name for p in last.iterdir()) == ["config.json", "model.safetensors", "training_state"]
+    state = sorted(p.name for p in (last / "training_state").iterdir())
+    assert state == ["optimizer.json", "optimizer.safetensors", "state.json"]
+    assert json.loads((last / "training_state" / "state.json").read_text())["step"] == 12
+    for p, q in zip(model.state_dict().values(), load_glc(last).state_dict().values()):
+        assert torch.equal(p, q)  # the checkpoint folder is also a model folder
 
 
 def test_resume_continues_the_same_run(tmp_path, dots):
@@ -125,12 +127,12 @@ def test_resume_continues_the_same_run(tmp_path, dots):
     with pytest.raises(_Killed):  # dies after step 5, checkpoint of step 4 on disk
         _run(tmp_path / "b", dots, steps=8, kill_at=5)
     resumed, cfg, out = _run(tmp_path / "b", dots, steps=8)  # fresh model, picks up step 4
-    assert [s for s, _ in out["losses"]] == [5, 6, 7, 8]
+    assert [s for s, _ in out.losses] == [5, 6, 7, 8]
     for (name, p), q in zip(straight.named_parameters(), resumed.parameters()):
         torch.testing.assert_close(p, q, rtol=1e-4, atol=1e-5, msg=name)
     # finished: a further call does nothing
     model = GLC(TINY)
-    assert train_glc(model, dots, cfg, tmp_path / "b")["losses"] == []
+    assert train_glc(model, dots, cfg, tmp_path / "b").losses == []
 
 
 def test_iterable_of_batches(tmp_path, dots):
@@ -139,4 +141,4 @@ def test_iterable_of_batches(tmp_path, dots):
     model = GLC(dataclasses.replace(TINY, drop_path_rate=0.0))
     cfg = GLCTrainConfig(steps=5, batch_size=2, warmup_steps=1)
     out = train_glc(model, iter(batches), cfg, tmp_path)
-    assert out["step"] == 2  # the iterable ran out first
+    assert out.step == 2  # the iterable ran out first

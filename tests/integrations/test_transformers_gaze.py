@@ -12,7 +12,8 @@ import torch
 
 transformers = pytest.importorskip("transformers", reason="the hf extra (transformers) is not installed")
 
-from gazereg.integrations.tiny import tiny_batch, tiny_model  # noqa: E402
+from tiny_models import tiny_batch, tiny_model  # noqa: E402
+
 from gazereg.integrations.transformers import (  # noqa: E402
     GazeRegularizer,
     camera_geometry,

@@ -1,3 +1,4 @@
+import dataclasses
 import math
 
 import numpy as np
@@ -5,8 +6,9 @@ import pytest
 import torch
 
 from gazereg.attention.probe import AttentionProbe
+from gazereg.data.dataset import StoreInfo
 from gazereg.losses import gaze_loss
-from gazereg.policies import available_policies, load_policy, make_policy
+from gazereg.policies import available_policies, load_policy, make_policy, policy_config_class
 from gazereg.policies.vla import VLAConfig, VLAPolicy
 from gazereg.policies.vla.configuration_vla import paper, tiny
 from gazereg.policies.vla.processor_vla import Tokenizer, random_shift, to_input_images
@@ -34,7 +36,7 @@ def build(head="l1", image=48, depth=3, cameras=("cam",), **kw) -> VLAPolicy:
         head=head,
         **kw,
     )
-    return make_policy("vla", cfg, tokenizer=tok)
+    return VLAPolicy(cfg, tok)
 
 
 def batch(policy: VLAPolicy, B=3, seed=0):
@@ -57,12 +59,15 @@ def batch(policy: VLAPolicy, B=3, seed=0):
 
 def test_registry_and_presets():
     assert "vla" in available_policies()
-    t = tiny().resolve(cameras=("corner2",), camera_hw=((96, 96),), state_dim=4, action_dim=4, vocab_size=40)
+    assert policy_config_class("vla") is VLAConfig and VLAConfig.type == "vla"
+    t = dataclasses.replace(
+        tiny(), cameras=("corner2",), camera_hw=((96, 96),), state_dim=4, action_dim=4, vocab_size=40
+    )
     p = VLAPolicy(t, Tokenizer("words", [f"w{i}" for i in range(38)], t.max_text_len))
     assert 0.5e6 <= p.num_parameters() <= 1.0e6
     assert t.grid_hw == (8, 8) and p.n_tokens == 64 + 12 + 1 + 4
-    pc = paper().resolve(
-        cameras=("corner2",), camera_hw=((224, 224),), state_dim=8, action_dim=7, vocab_size=50
+    pc = dataclasses.replace(
+        paper(), cameras=("corner2",), camera_hw=((224, 224),), state_dim=8, action_dim=7, vocab_size=50
     )
     big = VLAPolicy(pc, Tokenizer("words", [f"w{i}" for i in range(48)], pc.max_text_len))
     assert pc.grid_hw == (16, 16) and 10e6 < big.num_parameters() < 100e6  # GPU-sized
@@ -271,7 +276,7 @@ def test_tokenizer():
 def test_image_pipeline_agrees_with_the_patch_geometry(orientation):
     """A bright pixel block in the stored frame lands in the token the geometry maps its centre to."""
     p = build(image=48, orientation=orientation)
-    p2 = make_policy("vla", p.config.resolve(camera_hw=((96, 96),)), tokenizer=p.tokenizer)
+    p2 = VLAPolicy(dataclasses.replace(p.config, camera_hw=((96, 96),)), p.tokenizer)
     geo = p2.geometry("cam")  # stored at 96 px; the policy stretches to 48
     frame = torch.zeros(1, 96, 96, 3, dtype=torch.uint8)
     frame[0, 10:18, 60:68] = 255  # centre (u, v) = (64/96, 14/96)
@@ -287,3 +292,25 @@ def test_random_shift_is_seeded_and_bounded():
     b = random_shift(x, 2, torch.Generator().manual_seed(0))
     assert torch.equal(a, b) and a.shape == x.shape
     assert torch.equal(random_shift(x, 0, torch.Generator()), x)
+
+
+def test_make_policy_resolves_the_config_from_the_data():
+    data = StoreInfo(
+        cameras=("a", "b"),
+        camera_hw=((64, 48), (32, 32)),
+        state_dim=5,
+        action_dim=3,
+        instructions=tuple(INSTR),
+        tasks=("t",),
+        n_frames=10,
+    )
+    torch.manual_seed(0)
+    p = make_policy(VLAConfig(image_hw=(48, 48), dim=32, depth=2, stem_channels=8), data)
+    c = p.config
+    assert isinstance(p, VLAPolicy) and c.resolved and p.name == "vla"
+    assert (c.cameras, c.camera_hw, c.state_dim, c.action_dim) == (data.cameras, data.camera_hw, 5, 3)
+    assert c.vocab_size == p.tokenizer.vocab_size == len(Tokenizer.build(INSTR).vocab)
+    torch.manual_seed(0)
+    q = VLAPolicy(c, Tokenizer.build(INSTR, max_len=c.max_text_len))  # the same seed, the same weights
+    assert all(torch.equal(a, b) for a, b in zip(p.state_dict().values(), q.state_dict().values()))
+    assert VLAConfig.from_dict({"type": "vla", **c.to_dict()}) == c

@@ -85,18 +85,19 @@ def test_argv_defaults_to_sys_argv(monkeypatch, capsys):
 
 def test_tables_of_the_gazereg_commands_name_real_functions():
     from gazereg.cli import COMMANDS as top
-    from gazereg.data.importers import COMMANDS as imports
+    from gazereg.data.cli import COMMANDS as imports
+    from gazereg.gaze.glc.cli import COMMANDS as glc
     from gazereg.viz.cli import COMMANDS as viz
 
     # every top-level command is a module's main (not imported here: they load torch and the simulators)
     assert all(target.endswith(":main") for target, _ in top.commands.values())
-    for table in (imports, viz):
+    for table in (imports, viz, glc):
         for target, _ in table.available().values():
             assert callable(load_entry(target)), target
 
 
 def test_gazereg_import_and_viz_usage(capsys):
-    from gazereg.data import importers
+    from gazereg.data import cli as data_cli
     from gazereg.viz import cli as viz
 
     assert viz.main(["--help"]) == 0
@@ -106,9 +107,9 @@ def test_gazereg_import_and_viz_usage(capsys):
     )
     assert viz.main(["nope"]) == 2
     assert "gazereg viz: unknown figure 'nope'" in capsys.readouterr().err
-    assert importers.main([]) == 0
+    assert data_cli.main([]) == 0
     out = capsys.readouterr().out
     assert out.startswith("usage: gazereg import <lerobot|hdf5|export-priors> [options]\n\n  lerobot ")
     assert "gazereg import export-priors --store STORE" in out
-    assert importers.main(["nope"]) == 2
+    assert data_cli.main(["nope"]) == 2
     assert "gazereg import: unknown source 'nope'" in capsys.readouterr().err

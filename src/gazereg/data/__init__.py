@@ -1,4 +1,4 @@
-"""Episode store and importers/exporters."""
+"""Episode store, training data set, importers (imports, formats/) and the priors export (export)."""
 
 from gazereg.data.store import Episode, EpisodeStore
 

@@ -74,8 +74,10 @@ def select_episodes(
 def split_episodes(
     store: EpisodeStore, episodes: Sequence[int], val_fraction: float, seed: int
 ) -> tuple[list[int], list[int]]:
-    """A seeded split stratified by task: round(val_fraction * n) episodes of each task are held out (at
-    least one overall when val_fraction > 0 and there are >= 2 episodes; never a task's last episode)."""
+    """The policy trainer's validation split, random and seeded, stratified by task: round(val_fraction * n)
+    episodes of each task are held out (at least one overall when val_fraction > 0 and there are >= 2
+    episodes; never a task's last episode). Returns (train, validation) indices. (GLC's held-out episodes
+    are chosen differently, deterministically: `gazereg.gaze.glc.evaluate.holdout_split`.)"""
     if not 0 <= val_fraction < 1:
         raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
     by_task: dict[str, list[int]] = {}

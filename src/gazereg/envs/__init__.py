@@ -1,4 +1,5 @@
-"""Simulation: Meta-World wrapper, rendering, camera geometry, perturbations, scripted experts, collection.
+"""Simulation: the simulator registry, Meta-World and LIBERO, rendering, camera geometry, perturbations,
+scripted experts, collection.
 
 Names load on first use, so importing `gazereg.envs` does not import MuJoCo (the OpenGL backend is chosen
 when an environment is built, see `gazereg.envs.render.select_gl_backend`).
@@ -13,6 +14,11 @@ import importlib
 from typing import Any
 
 _EXPORTS = {
+    "Env": "gazereg.envs.base",
+    "Simulator": "gazereg.envs.base",
+    "env_class": "gazereg.envs.base",
+    "make_collector": "gazereg.envs.base",
+    "register_simulator": "gazereg.envs.base",
     "MetaWorldEnv": "gazereg.envs.metaworld.env",
     "setup_of": "gazereg.envs.metaworld.env",
     "STATE_LAYOUT": "gazereg.envs.metaworld.env",
@@ -27,9 +33,9 @@ _EXPORTS = {
     "parse_perturbation": "gazereg.envs.perturbations",
     "instruction_for": "gazereg.envs.metaworld.instructions",
     "Expert": "gazereg.envs.metaworld.experts",
-    "CollectConfig": "gazereg.envs.collect",
+    "CollectConfig": "gazereg.envs.collect_config",
+    "CollectError": "gazereg.envs.collect_config",
     "collect": "gazereg.envs.collect",
-    "CollectError": "gazereg.envs.collect",
 }
 
 __all__ = list(_EXPORTS)

@@ -33,209 +33,98 @@ opening), action, and extras
     contact, grasp                              bool (T,)       gripper touches / both fingers hold an object
     reward, success                             (T,)            the simulator's, after executing action t
 and meta: seed, setup (MT1 benchmark seed and index), success, fps, env, env_name, steps, expert,
-camera geometry, settings. Workers: one process per core by default, each with its own environment.
-The per-simulator parts (tasks, environments, the rollout) are collector objects: `SIMULATORS`.
+camera geometry, settings. Workers: one process per core by default, each with its own environments
+(`gazereg.runtime.pool`). The per-simulator parts (tasks, environments, the rollout) are collector objects
+registered in `gazereg.envs.base`. Settings, presets and their checks: `gazereg.envs.collect_config`.
+Every attempt is appended to `<out>/collect/attempts.jsonl` (a `gazereg.runtime.pool.ResumeLog`).
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import dataclasses
-import hashlib
+import functools
 import json
-import multiprocessing as mp
-import os
 import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
+
+from tqdm import tqdm
 
 from gazereg.data.store import EpisodeStore
-from gazereg.envs.recording import rollout_expert  # noqa: F401  (re-exported: gazereg.envs.collect.rollout_expert)
-from gazereg.runtime.io import append_jsonl, atomic_write_json
+from gazereg.envs.base import Collector, Env, make_collector
+from gazereg.envs.collect_config import (
+    FINGERPRINT_FIELDS,
+    PRESETS,
+    CollectConfig,
+    CollectError,
+    episode_index,
+    fingerprint,
+    resolve,
+    validate,
+)
+from gazereg.runtime.config import parse, save_config
+from gazereg.runtime.io import atomic_write_json
+from gazereg.runtime.pool import ResumeLog, WorkerPool, available_cores
 
-# simulator -> "module:attribute" of its collector (imported only when used); see rollout.MetaWorldCollector
-SIMULATORS = {
-    "metaworld": "gazereg.envs.recording:MetaWorldCollector",
-    "libero": "gazereg.envs.libero.expert:LiberoCollector",
-}
-INDEX_STRIDE = 1000  # episode indices per task slot
-MAX_INDEX = 999_999  # the store names episodes with 6 digits
-
-
-class CollectError(ValueError):
-    """A collection that cannot run as configured (unknown task, a store made with other settings, ...)."""
+MAX_WORKER_ENVS = 8  # environments one worker keeps (a LIBERO suite's tasks would not fit in memory)
+SINGLE_THREADED = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 
 
 @dataclass(frozen=True)
-class CollectConfig:
-    """Expert demonstrations in simulation (Meta-World or LIBERO), written to an episode store."""
-
-    out: Path = Path("runs/quick/demos")
-    """The episode store (created if missing)."""
-    tasks: tuple[str, ...] = ("reach-v3", "button-press-topdown-v3", "pick-place-v3")
-    """Meta-World v3 task names, or LIBERO tasks with --env libero (commas or spaces between them)."""
-    episodes: int = 30
-    """Successful episodes wanted per task."""
-    seed_base: int = 0
-    """First setup seed; seeds 0-49 are Meta-World's 50 MT1 setups of benchmark seed 0."""
-    max_failures: int = 20
-    """Extra seeds tried per task to replace failed rollouts."""
-    cameras: tuple[str, ...] = ()
-    """Cameras to render; empty = the simulator's default (Meta-World: corner2; LIBERO: agentview_rgb
-    eye_in_hand_rgb). Meta-World: corner, corner2, corner3, corner4, topview, behindGripper, gripperPOV."""
-    image_size: int = 96
-    """Square image side in pixels."""
-    action_noise: float = 0.0
-    """Std of Gaussian noise added to the expert's actions (action units; actions are clipped to [-1, 1])."""
-    max_steps: int = 0
-    """A rollout that has not succeeded after this many steps is a failure; 0 = the simulator's default
-    (Meta-World 200, LIBERO 220, the LIBERO-Spatial evaluation length)."""
-    goal_marker_radius: float = 0.03
-    """Radius (m) of the rendered goal sphere (rendering only); 0 keeps Meta-World's own marker."""
-    perturbation: str = ""
-    """Meta-World: render under this perturbation (gazereg.envs.perturbations spec, e.g. dim:0.7): the same
-    setups and expert actions, seen under other light or with sensor noise; empty = clean."""
-    workers: int = 0
-    """Worker processes; 0 = one per available core."""
-    gl_backend: str = ""
-    """OpenGL backend (egl, osmesa); empty = MUJOCO_GL if set, else egl, else osmesa."""
-    progress: bool = True
-    """Show a progress bar."""
-    env: Literal["metaworld", "libero"] = "metaworld"
-    """Simulator: metaworld, or libero (needs the LIBERO venv: bash scripts/libero_env.sh gazereg collect ...)."""
+class RolloutJob:
+    task: str
+    seed: int
+    index: int  # where the episode goes in the store
 
 
-PRESETS = {
-    "quick": lambda: CollectConfig(),
-    "smoke": lambda: CollectConfig(
-        out=Path("runs/smoke/demos"),
-        tasks=("reach-v3", "pick-place-v3"),
-        episodes=2,
-        max_failures=4,
-        image_size=64,
-        max_steps=150,
-    ),
-    "paper": lambda: CollectConfig(
-        out=Path("runs/paper/demos"),
-        tasks=(
-            "reach-v3",
-            "push-v3",
-            "pick-place-v3",
-            "door-open-v3",
-            "drawer-open-v3",
-            "drawer-close-v3",
-            "button-press-topdown-v3",
-            "peg-insert-side-v3",
-            "window-open-v3",
-            "window-close-v3",
-        ),
-        episodes=50,
-        max_failures=50,
-        cameras=("corner2", "corner3"),
-        image_size=128,
-        max_steps=300,
-    ),
-}
+class CollectWorker:
+    """One process's part of a collection: its environments by task; rolls out a job and stores a success."""
 
-# Settings that change what an episode contains; episodes made with other values are not mixed in one store.
-_FINGERPRINT_FIELDS = ("cameras", "image_size", "action_noise", "max_steps", "goal_marker_radius")
+    def __init__(self, cfg: CollectConfig):
+        self.cfg = cfg  # resolved
+        self.collector: Collector = make_collector(cfg.env)
+        self.fingerprint = fingerprint(cfg)
+        self.envs: dict[str, Env] = {}
 
+    def env(self, task: str) -> Env:
+        if task not in self.envs:
+            if len(self.envs) >= MAX_WORKER_ENVS:
+                self.envs.pop(next(iter(self.envs))).close()
+            self.envs[task] = self.collector.make_env(task, self.cfg)
+        return self.envs[task]
 
-def fingerprint(cfg: CollectConfig) -> str:
-    """Hash of the settings that change what an episode contains (of a resolved config)."""
-    d = {k: getattr(cfg, k) for k in _FINGERPRINT_FIELDS}
-    d["cameras"] = list(d["cameras"])
-    if cfg.env != "metaworld":  # Meta-World stores made before there was a choice keep their fingerprint
-        d["env"] = cfg.env
-    if cfg.perturbation:  # likewise clean stores
-        d["perturbation"] = cfg.perturbation
-    return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+    def run(self, job: RolloutJob) -> dict[str, Any]:
+        """Roll out `job`; write the episode to the store if it succeeded. Returns its summary."""
+        cfg = self.cfg
+        env = self.env(job.task)
+        try:
+            ep, summary = self.collector.rollout(env, job.seed, cfg.action_noise, cfg.max_steps)
+        except Exception as e:  # a simulator error fails this seed, not the collection
+            return {
+                "task": job.task,
+                "seed": job.seed,
+                "index": job.index,
+                "success": False,
+                "steps": 0,
+                "seconds": 0.0,
+                "error": f"{type(e).__name__}: {e}",
+                "exception": True,
+            }
+        summary["index"] = job.index
+        if summary["success"]:
+            ep.meta["collect_fingerprint"] = self.fingerprint
+            EpisodeStore(cfg.out).write(ep, index=job.index)
+        else:
+            summary["error"] = f"no success within {cfg.max_steps} steps"
+        return summary
 
-
-def episode_index(slot: int, seed: int, seed_base: int) -> int:
-    return slot * INDEX_STRIDE + (seed - seed_base)
-
-
-def available_cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
-
-
-def collector(env: str) -> Any:
-    """The collector of simulator `env` (see SIMULATORS); CollectError for an unknown one."""
-    import importlib
-
-    if env not in SIMULATORS:
-        raise CollectError(f"unknown simulator {env!r}; choose one of {sorted(SIMULATORS)}")
-    module, name = SIMULATORS[env].split(":")
-    return getattr(importlib.import_module(module), name)()
-
-
-def resolve(cfg: CollectConfig) -> CollectConfig:
-    """Fill the simulator's defaults (cameras, max_steps) and canonical task names; CollectError if invalid."""
-    sim = collector(cfg.env)
-    try:
-        tasks = sim.tasks(cfg.tasks)
-    except (KeyError, ValueError) as e:
-        raise CollectError(str(e.args[0]) if e.args else str(e)) from None
-    return dataclasses.replace(
-        cfg,
-        tasks=tasks,
-        cameras=tuple(cfg.cameras) or sim.default_cameras,
-        max_steps=cfg.max_steps or sim.default_max_steps,
-    )
-
-
-# ----- workers ----------------------------------------------------------------------------------------------
-_WORKER_ENVS: dict[tuple, Any] = {}  # environments kept per process, by task and render settings
-
-
-def _worker_init() -> None:
-    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
-
-
-def _env_for(task: str, cfg: CollectConfig) -> Any:
-    """This process's environment for `task` and the render settings of `cfg` (a resolved config)."""
-    key = (cfg.env, task, cfg.cameras, cfg.image_size, cfg.max_steps, cfg.goal_marker_radius, cfg.gl_backend)
-    key += (cfg.perturbation,)
-    if key not in _WORKER_ENVS:
-        if len(_WORKER_ENVS) >= 8:  # a long-lived process (tests, notebooks) does not pile environments up
-            oldest = next(iter(_WORKER_ENVS))
-            _WORKER_ENVS.pop(oldest).close()
-        _WORKER_ENVS[key] = collector(cfg.env).make_env(task, cfg)
-    return _WORKER_ENVS[key]
-
-
-def _run_job(cfg: CollectConfig, task: str, seed: int, index: int) -> dict[str, Any]:
-    """Run one rollout in this process; write it to the store if it succeeded. Returns its summary."""
-    env = _env_for(task, cfg)
-    try:
-        ep, summary = collector(cfg.env).rollout(env, seed, cfg.action_noise, cfg.max_steps)
-    except Exception as e:  # a simulator error fails this seed, not the collection
-        error = f"{type(e).__name__}: {e}"
-        return {
-            "task": task,
-            "seed": seed,
-            "index": index,
-            "success": False,
-            "steps": 0,
-            "seconds": 0.0,
-            "error": error,
-            "exception": True,
-        }
-    summary["index"] = index
-    if summary["success"]:
-        ep.meta["collect_fingerprint"] = fingerprint(cfg)
-        EpisodeStore(cfg.out).write(ep, index=index)
-    else:
-        summary["error"] = f"no success within {cfg.max_steps} steps"
-    return summary
+    def close(self) -> None:
+        for env in self.envs.values():
+            env.close()
+        self.envs.clear()
 
 
 # ----- the scheduler ----------------------------------------------------------------------------------------
@@ -256,6 +145,96 @@ class TaskProgress:
         return len(self.successes) + len(self.resumed)
 
 
+class Scheduler:
+    """Which seeds to roll out: per task, seeds from seed_base on while fewer than `episodes` succeeded or
+    are running, up to episodes + max_failures seeds; seeds already in the store are resumed (after checking
+    that they hold this task and seed, made with these settings), seeds that failed before with the same
+    settings are skipped (rollouts are deterministic)."""
+
+    def __init__(self, cfg: CollectConfig, store: EpisodeStore, failed_before: set[tuple[str, int]]):
+        self.cfg, self.store, self.failed_before = cfg, store, failed_before
+        self.collector = make_collector(cfg.env)
+        self.fingerprint = fingerprint(cfg)
+        self.progress = [
+            TaskProgress(t, slot, cfg.episodes, next_seed=cfg.seed_base) for slot, t in enumerate(cfg.tasks)
+        ]
+        self.by_task = {tp.task: tp for tp in self.progress}
+        self.new_frames = self.new_episodes = 0
+
+    def initial_jobs(self) -> list[RolloutJob]:
+        return [job for tp in self.progress for job in self.next_jobs(tp)]
+
+    def next_jobs(self, tp: TaskProgress) -> list[RolloutJob]:
+        cfg = self.cfg
+        jobs = []
+        while (
+            tp.done + tp.pending < tp.wanted
+            and tp.next_seed < cfg.seed_base + cfg.episodes + cfg.max_failures
+        ):
+            seed = tp.next_seed
+            tp.next_seed += 1
+            index = episode_index(tp.slot, seed, cfg.seed_base)
+            if index in self.store:
+                self._resume(tp, seed, index)
+            elif (tp.task, seed) in self.failed_before:
+                tp.failures[seed] = "failed before with the same settings (skipped)"
+            else:
+                tp.pending += 1
+                jobs.append(RolloutJob(tp.task, seed, index))
+        return jobs
+
+    def _resume(self, tp: TaskProgress, seed: int, index: int) -> None:
+        """Count the stored episode `index` of (tp.task, seed); CollectError if it holds anything else."""
+        meta = self.store.meta(index)
+        task = self.collector.episode_task(tp.task)
+        if meta.get("task") != task or meta.get("seed") != seed:
+            raise CollectError(
+                f"{self.cfg.out}: episode {index} holds task {meta.get('task')!r} seed {meta.get('seed')}, but "
+                f"this collection would put {task!r} seed {seed} there; use the same tasks and seed_base "
+                "as before, or a new --out"
+            )
+        if meta.get("collect_fingerprint") != self.fingerprint:
+            raise CollectError(
+                f"{self.cfg.out}: episode {index} was collected with other settings "
+                f"({', '.join(FINGERPRINT_FIELDS)}); use the same settings to resume, or a new --out"
+            )
+        tp.resumed.append(seed)
+        tp.frames += int(meta["length"])
+
+    def record(self, summary: dict[str, Any]) -> list[RolloutJob]:
+        """Count a finished rollout; returns the jobs that replace it."""
+        tp = self.by_task[summary["task"]]
+        tp.pending -= 1
+        if summary["success"]:
+            tp.successes.append(summary["seed"])
+            tp.frames += summary["steps"]
+            self.new_frames += summary["steps"]
+            self.new_episodes += 1
+        else:
+            tp.failures[summary["seed"]] = summary.get("error", "failed")
+        return self.next_jobs(tp)
+
+    @property
+    def failures(self) -> int:
+        return sum(len(tp.failures) for tp in self.progress)
+
+    def tasks_report(self) -> dict[str, dict[str, Any]]:
+        seed_base = self.cfg.seed_base
+        return {
+            tp.task: {
+                "wanted": tp.wanted,
+                "episodes": tp.done,
+                "new": len(tp.successes),
+                "resumed": len(tp.resumed),
+                "failed_seeds": {str(k): v for k, v in sorted(tp.failures.items())},
+                "frames": tp.frames,
+                "indices": sorted(episode_index(tp.slot, s, seed_base) for s in tp.successes + tp.resumed),
+            }
+            for tp in self.progress
+        }
+
+
+# ----- a collection -----------------------------------------------------------------------------------------
 @dataclass
 class CollectReport:
     tasks: dict[str, dict[str, Any]]
@@ -271,162 +250,76 @@ class CollectReport:
         return d
 
 
-def _validate(cfg: CollectConfig) -> None:
-    """Check a resolved config (see `resolve`)."""
-    limit = collector(cfg.env).max_steps_limit
-    if not cfg.tasks:
-        raise CollectError("no tasks given")
-    if len(set(cfg.tasks)) != len(cfg.tasks):
-        raise CollectError(f"duplicate tasks in {cfg.tasks}")
-    if cfg.episodes < 1 or cfg.max_failures < 0 or cfg.episodes + cfg.max_failures > INDEX_STRIDE:
-        raise CollectError(f"need 1 <= episodes and episodes + max_failures <= {INDEX_STRIDE}")
-    if len(cfg.tasks) * INDEX_STRIDE - 1 > MAX_INDEX:
-        raise CollectError(f"at most {(MAX_INDEX + 1) // INDEX_STRIDE} tasks per store")
-    if cfg.seed_base < 0:
-        raise CollectError("seed_base must be >= 0")
-    if not 1 <= cfg.max_steps <= limit:
-        raise CollectError(f"max_steps must be in [1, {limit}]")
-    if cfg.image_size < 8 or not cfg.cameras:
-        raise CollectError("need at least one camera and image_size >= 8")
-    if cfg.perturbation:
-        from gazereg.envs.perturbations import parse_perturbation
+def attempt_key(task: str, seed: int, fp: str) -> str:
+    """An attempt's key in the attempts log: the same (task, seed) with the same settings."""
+    return json.dumps([task, seed, fp])
 
-        if cfg.env != "metaworld":
-            raise CollectError(f"perturbation={cfg.perturbation!r}: only the metaworld simulator renders one")
-        try:
-            parse_perturbation(cfg.perturbation)
-        except (KeyError, ValueError) as e:
-            raise CollectError(f"perturbation={cfg.perturbation!r}: {e}") from None
+
+def failed_before(attempts: ResumeLog, fp: str) -> set[tuple[str, int]]:
+    """(task, seed) of the logged rollouts that failed with settings `fp` (errors are retried)."""
+    return {
+        (r["task"], r["seed"])
+        for r in attempts.read().values()
+        if not r["success"] and r.get("fingerprint") == fp and not r.get("exception")
+    }
+
+
+def _run(cfg: CollectConfig, scheduler: Scheduler, attempts: ResumeLog, workers: int) -> None:
+    """Roll out the scheduler's jobs in `workers` processes until it wants no more, logging every attempt."""
+    bar = tqdm(
+        total=cfg.episodes * len(cfg.tasks),
+        desc="collect",
+        unit="ep",
+        file=sys.stderr,
+        disable=not cfg.progress,
+    )
+    initial = scheduler.initial_jobs()
+    bar.update(sum(len(tp.resumed) for tp in scheduler.progress))
+    try:
+        worker = functools.partial(CollectWorker, cfg)
+        with WorkerPool(worker, workers, child_environ=SINGLE_THREADED) as pool:
+            for job in initial:
+                pool.submit(job, tag=job)
+            for _, summary in pool.results():
+                attempts.append(
+                    attempt_key(summary["task"], summary["seed"], scheduler.fingerprint),
+                    {**summary, "fingerprint": scheduler.fingerprint},
+                )
+                for job in scheduler.record(summary):
+                    pool.submit(job, tag=job)
+                if summary["success"]:
+                    bar.update(1)
+                else:
+                    bar.set_postfix(failed=scheduler.failures)
+    finally:
+        bar.close()
 
 
 def collect(cfg: CollectConfig) -> CollectReport:
     """Run a collection (resuming a previous one in the same store); returns the report (also on disk)."""
-    from gazereg.runtime.config import save_config
-
     cfg = resolve(cfg)
-    _validate(cfg)
-    sim = collector(cfg.env)
+    validate(cfg)
     store = EpisodeStore(cfg.out, create=True)
     log_dir = Path(cfg.out) / "collect"
     save_config(cfg, log_dir / "config.json")
-    attempts_path = log_dir / "attempts.jsonl"
-    fp = fingerprint(cfg)
-    failed_before: set[tuple[str, int]] = set()
-    if attempts_path.exists():
-        for line in attempts_path.read_text().splitlines():
-            rec = json.loads(line)
-            # Seeds that failed with the same settings fail again (rollouts are deterministic); errors are retried.
-            if not rec["success"] and rec.get("fingerprint") == fp and not rec.get("exception"):
-                failed_before.add((rec["task"], rec["seed"]))
-
-    progress = [
-        TaskProgress(t, slot, cfg.episodes, next_seed=cfg.seed_base) for slot, t in enumerate(cfg.tasks)
-    ]
-    limit = cfg.episodes + cfg.max_failures
-
-    def next_jobs(tp: TaskProgress) -> list[tuple[str, int, int]]:
-        jobs = []
-        while tp.done + tp.pending < tp.wanted and tp.next_seed < cfg.seed_base + limit:
-            seed = tp.next_seed
-            tp.next_seed += 1
-            index = episode_index(tp.slot, seed, cfg.seed_base)
-            if index in store:
-                meta = store.meta(index)
-                if meta.get("task") != sim.episode_task(tp.task) or meta.get("seed") != seed:
-                    raise CollectError(
-                        f"{cfg.out}: episode {index} holds task {meta.get('task')!r} seed {meta.get('seed')}, but "
-                        f"this collection would put {sim.episode_task(tp.task)!r} seed {seed} there; use the same tasks and seed_base "
-                        "as before, or a new --out"
-                    )
-                if meta.get("collect_fingerprint") != fp:
-                    raise CollectError(
-                        f"{cfg.out}: episode {index} was collected with other settings ({', '.join(_FINGERPRINT_FIELDS)}); "
-                        "use the same settings to resume, or a new --out"
-                    )
-                tp.resumed.append(seed)
-                tp.frames += int(meta["length"])
-            elif (tp.task, seed) in failed_before:
-                tp.failures[seed] = "failed before with the same settings (skipped)"
-            else:
-                tp.pending += 1
-                jobs.append((tp.task, seed, index))
-        return jobs
-
+    attempts = ResumeLog(log_dir / "attempts.jsonl")
+    scheduler = Scheduler(cfg, store, failed_before(attempts, fingerprint(cfg)))
     workers = cfg.workers or available_cores()
-    by_task = {tp.task: tp for tp in progress}
     t0 = time.perf_counter()
-    new_frames = 0
-    new_episodes = 0
-    bar = None
-    if cfg.progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=cfg.episodes * len(cfg.tasks), desc="collect", unit="ep", file=sys.stderr)
-
-    def handle(summary: dict[str, Any]) -> list[tuple[str, int, int]]:
-        nonlocal new_frames, new_episodes
-        tp = by_task[summary["task"]]
-        tp.pending -= 1
-        append_jsonl(attempts_path, {**summary, "fingerprint": fp})
-        if summary["success"]:
-            tp.successes.append(summary["seed"])
-            tp.frames += summary["steps"]
-            new_frames += summary["steps"]
-            new_episodes += 1
-            if bar is not None:
-                bar.update(1)
-        else:
-            tp.failures[summary["seed"]] = summary.get("error", "failed")
-            if bar is not None:
-                bar.set_postfix(failed=sum(len(p.failures) for p in progress))
-        return next_jobs(tp)
-
-    initial = [job for tp in progress for job in next_jobs(tp)]
-    if bar is not None:
-        bar.update(sum(len(tp.resumed) for tp in progress))
-    try:
-        if workers <= 1:
-            queue = list(initial)
-            while queue:
-                queue.extend(handle(_run_job(cfg, *queue.pop(0))))
-        else:
-            ctx = mp.get_context("spawn")  # fresh interpreters: no inherited GL or MuJoCo state
-            with cf.ProcessPoolExecutor(
-                max_workers=workers, mp_context=ctx, initializer=_worker_init
-            ) as pool:
-                running = {pool.submit(_run_job, cfg, *job) for job in initial}
-                while running:
-                    finished, running = cf.wait(running, return_when=cf.FIRST_COMPLETED)
-                    for fut in finished:
-                        for job in handle(fut.result()):
-                            running.add(pool.submit(_run_job, cfg, *job))
-    finally:
-        if bar is not None:
-            bar.close()
-    seconds = time.perf_counter() - t0
-
-    tasks_report = {}
-    for tp in progress:
-        tasks_report[tp.task] = {
-            "wanted": tp.wanted,
-            "episodes": tp.done,
-            "new": len(tp.successes),
-            "resumed": len(tp.resumed),
-            "failed_seeds": {str(k): v for k, v in sorted(tp.failures.items())},
-            "frames": tp.frames,
-            "indices": sorted(episode_index(tp.slot, s, cfg.seed_base) for s in tp.successes + tp.resumed),
-        }
+    _run(cfg, scheduler, attempts, workers)
     report = CollectReport(
-        tasks=tasks_report,
-        seconds=seconds,
-        new_episodes=new_episodes,
-        new_frames=new_frames,
-        complete=all(tp.done >= tp.wanted for tp in progress),
+        tasks=scheduler.tasks_report(),
+        seconds=time.perf_counter() - t0,
+        new_episodes=scheduler.new_episodes,
+        new_frames=scheduler.new_frames,
+        complete=all(tp.done >= tp.wanted for tp in scheduler.progress),
     )
-    atomic_write_json(log_dir / "report.json", {**report.to_dict(), "workers": workers, "fingerprint": fp})
+    info = {**report.to_dict(), "workers": workers, "fingerprint": scheduler.fingerprint}
+    atomic_write_json(log_dir / "report.json", info)
     return report
 
 
+# ----- the command line -------------------------------------------------------------------------------------
 def _split_lists(argv: Sequence[str], options: Sequence[str] = ("--tasks", "--cameras")) -> list[str]:
     """Accept comma-separated lists: `--tasks a,b` and `--tasks=a,b` become `--tasks a b`."""
     out: list[str] = []
@@ -447,8 +340,6 @@ def _split_lists(argv: Sequence[str], options: Sequence[str] = ("--tasks", "--ca
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from gazereg.runtime.config import parse
-
     argv = list(sys.argv[1:] if argv is None else argv)
     cfg = parse(PRESETS, _split_lists(argv), prog="gazereg collect", description=__doc__.split("\n\n")[0])
     try:

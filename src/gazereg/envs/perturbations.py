@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -188,8 +188,6 @@ class Perturbation:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        from dataclasses import asdict
-
         return {"name": self.name, "lighting": asdict(self.lighting), "noise": asdict(self.noise)}
 
 

@@ -23,6 +23,7 @@ import contextlib
 import ctypes
 import ctypes.util
 import os
+import warnings
 import weakref
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
@@ -88,8 +89,6 @@ def select_gl_backend(environ: Mapping[str, str] | None = None) -> str:
         return "egl"
     osm_ok, osm_missing = osmesa_status()
     if osm_ok:
-        import warnings
-
         warnings.warn(
             f"EGL is not available ({'; '.join(egl_missing)}); rendering with OSMesa instead. "
             f"Install {EGL_PACKAGES} (apt-get install -y {EGL_PACKAGES}) for EGL.",
@@ -327,6 +326,15 @@ def default_mesh_cell(height: int, width: int) -> float | None:
     """Mesh simplification that stays below a pixel: 1 cm up to 160 px, 5 mm up to 320 px, none above."""
     side = max(height, width)
     return 0.01 if side <= 160 else 0.005 if side <= 320 else None
+
+
+def resolve_mesh_cell(mesh_cell: float | str | None, height: int, width: int) -> float | None:
+    """An environment's `mesh_cell` argument -> the grid cell (metres) of the render copy's meshes, or None for
+    the full meshes: "auto" is `default_mesh_cell`; ValueError for any other string."""
+    cell = default_mesh_cell(height, width) if mesh_cell == "auto" else mesh_cell
+    if isinstance(cell, str):
+        raise ValueError(f"mesh_cell must be 'auto', a size in metres or None, got {mesh_cell!r}")
+    return cell
 
 
 @dataclass

@@ -7,8 +7,15 @@ import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from gazereg.evaluation.rollout import ROBUSTNESS_CONDITIONS, EvalConfig
+from gazereg.evaluation.config import ROBUSTNESS_CONDITIONS, EvalConfig
 from gazereg.gaze.aggregation import AggregationConfig
+from gazereg.gaze.sources import GazeSourceParams
+from gazereg.gaze.sources.glc import GLCParams
+from gazereg.gaze.sources.perturbed import PerturbedParams
+from gazereg.gaze.sources.simple import SaliencyParams, UniformParams
+from gazereg.gaze.sources.visuomotor import VisuomotorParams
+from gazereg.report.build import ReportSpec
+from gazereg.runtime.config import to_dict
 from gazereg.training.config import DataConfig, GazeConfig, OptimConfig, TrainConfig
 from gazereg.training.config import quick as quick_train
 from gazereg.training.config import smoke as smoke_train
@@ -25,11 +32,12 @@ class ExperimentConfig:
     heldout_per_task: int = 3
     """expert episodes per task on unseen setups, for attention-gaze alignment only"""
     collect_workers: int = 2
-    gaze_source: str = "visuomotor"
-    gaze_params: tuple[str, ...] = ()
-    glc_params: tuple[str, ...] = ()
-    """the `glc` arm's gaze-source parameters; without checkpoint=DIR a small GLC is trained here first (see
-    `trains_glc`) on the gaze source's points of other demonstrations, then predicts the priors"""
+    gaze: VisuomotorParams = field(default_factory=VisuomotorParams)
+    """the gaze arm's source, simulated eye-hand coordination on the demonstrations' simulator facts: its
+    perturbed controls are made from it, GLC learns from it, and every arm's attention is measured against it"""
+    glc: GLCParams = field(default_factory=GLCParams)
+    """the `glc` arm's gaze source; without a checkpoint a small GLC is trained here first (see `trains_glc`) on
+    the gaze source's points of other demonstrations, then predicts the priors"""
     glc_demos_per_task: int = 20
     """expert demonstrations per task on setups of their own (never trained on or evaluated) that train GLC"""
     glc_steps: int = 600
@@ -68,33 +76,71 @@ EXECUTION_KEYS = (
 
 def trains_glc(cfg: ExperimentConfig) -> bool:
     """Whether the experiment trains its own GLC: the glc arm runs and no checkpoint was given."""
-    return "glc" in cfg.arms and not any(p.startswith("checkpoint=") for p in cfg.glc_params)
+    return "glc" in cfg.arms and cfg.glc.checkpoint is None
 
 
 def glc_dir(cfg: ExperimentConfig) -> Path:
     return Path(cfg.out) / "glc"
 
 
-def arm_prior(arm: str, cfg: ExperimentConfig) -> tuple[str | None, str | None, tuple[str, ...]]:
-    """Arm -> (prior name, gaze source, source params); baseline has none."""
-    base = cfg.gaze_source
-    table: dict[str, tuple[str | None, str | None, tuple[str, ...]]] = {
-        "baseline": (None, None, ()),
-        "gaze": (base, base, cfg.gaze_params),
-        "perturbed": (f"{base}-shuffled", "perturbed", ("mode=shuffle", f"base={base}")),
-        "blobs": ("blobs", "perturbed", ("mode=blobs",)),
-        "other_episode": (f"{base}-other-episode", "perturbed", ("mode=other_episode", f"base={base}")),
-        "saliency": ("saliency", "saliency", ()),
-        "uniform": ("uniform", "uniform", ()),
-        "glc": (
-            "glc",
-            "glc",
-            cfg.glc_params if not trains_glc(cfg) else (f"checkpoint={glc_dir(cfg) / 'final'}",),
-        ),
-    }
-    if arm not in table:
-        raise KeyError(f"unknown arm {arm!r}; choose from {sorted(table)}")
-    return table[arm]
+@dataclass(frozen=True)
+class PriorSpec:
+    """A prior an arm trains on: its name in the episode store and the gaze source that makes it."""
+
+    name: str
+    source: GazeSourceParams
+
+
+ARMS = ("baseline", "gaze", "perturbed", "blobs", "other_episode", "saliency", "uniform", "glc")
+
+
+def gaze_prior(cfg: ExperimentConfig) -> PriorSpec:
+    """The gaze source's own prior: the gaze arm trains on it, the perturbed controls are made from it and
+    every arm's attention is measured against it."""
+    return PriorSpec(cfg.gaze.name, cfg.gaze)
+
+
+def arm_prior(arm: str, cfg: ExperimentConfig) -> PriorSpec | None:
+    """The prior `arm` trains on; None for the baseline."""
+    base = cfg.gaze.name
+    if arm == "baseline":
+        return None
+    if arm == "gaze":
+        return gaze_prior(cfg)
+    if arm == "perturbed":
+        return PriorSpec(f"{base}-shuffled", PerturbedParams(mode="shuffle", base=base))
+    if arm == "blobs":
+        return PriorSpec("blobs", PerturbedParams(mode="blobs"))
+    if arm == "other_episode":
+        return PriorSpec(f"{base}-other-episode", PerturbedParams(mode="other_episode", base=base))
+    if arm == "saliency":
+        return PriorSpec("saliency", SaliencyParams())
+    if arm == "uniform":
+        return PriorSpec("uniform", UniformParams())
+    if arm == "glc":
+        trained = replace(cfg.glc, checkpoint=glc_dir(cfg) / "final")
+        return PriorSpec("glc", trained if trains_glc(cfg) else cfg.glc)
+    raise KeyError(f"unknown arm {arm!r}; choose from {sorted(ARMS)}")
+
+
+def report_spec(cfg: ExperimentConfig, preset: str) -> ReportSpec:
+    """What the report says the experiment ran."""
+    return ReportSpec(
+        preset=preset,
+        tasks=cfg.tasks,
+        arms=cfg.arms,
+        train_seeds=cfg.train_seeds,
+        train_steps=cfg.train.steps,
+        batch_size=cfg.train.batch_size,
+        gaze_weight=cfg.train.gaze.weight,
+        gaze_layers=tuple(cfg.train.gaze.layers),
+        eval_episodes=cfg.eval.episodes,
+        eval_conditions=tuple(cfg.eval.conditions),
+        eval_seed_start=cfg.eval.seed_start,
+        convergence_episodes=cfg.convergence_episodes,
+        threshold=cfg.threshold,
+        config=to_dict(cfg),
+    )
 
 
 # ----- presets ------------------------------------------------------------------------------------------------

@@ -33,20 +33,34 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
+from gazereg.data.store import EpisodeStore
+from gazereg.envs.collect import collect
+from gazereg.envs.collect_config import CollectConfig
+from gazereg.evaluation.alignment import alignment_report, attention_maps
 from gazereg.evaluation.rollout import evaluate
 from gazereg.experiment.config import (
     EXECUTION_KEYS,
     PRESETS,
     ExperimentConfig,
+    PriorSpec,
     arm_prior,
+    gaze_prior,
     glc_dir,
+    report_spec,
     trains_glc,
 )
-from gazereg.report.tables import base_arm
+from gazereg.gaze.priors import PriorsConfig, make_priors
+from gazereg.policies import load_policy
+from gazereg.report.build import StageOutputs, build_report, write_report
+from gazereg.report.figures import attention_panels, plot_attention
+from gazereg.report.ids import RunId
 from gazereg.runtime.clock import ResumableClock
-from gazereg.runtime.config import config_diff, save_config, to_dict
-from gazereg.runtime.io import atomic_write_json, atomic_write_text
+from gazereg.runtime.config import config_diff, parse, save_config, split_preset, to_dict
+from gazereg.runtime.io import atomic_write_json
+from gazereg.training.checkpoint import latest_checkpoint, list_checkpoints
 from gazereg.training.config import TrainConfig
+from gazereg.training.glc_store import GLCStoreTrainConfig, train_glc_on_store
+from gazereg.training.loop import train
 
 log = logging.getLogger(__name__)
 
@@ -117,9 +131,6 @@ class Experiment:
 
     # ----- stages -------------------------------------------------------------------------------------------
     def stage_demos(self, _: dict[str, Any]) -> dict[str, Any]:
-        from gazereg.data.store import EpisodeStore
-        from gazereg.envs.collect import CollectConfig, collect
-
         c = self.cfg
         common = dict(
             tasks=c.tasks,
@@ -149,62 +160,54 @@ class Experiment:
             }
         return out
 
-    def priors_needed(self) -> list[tuple[str, str, tuple[str, ...]]]:
-        """(prior name, gaze source, params) of every prior the arms train on, and always the gaze source's
-        own: the perturbed controls are made from it and the align stage measures every arm against it (a
-        baseline-only experiment too)."""
-        base, bsrc, bparams = arm_prior("gaze", self.cfg)
-        assert base is not None and bsrc is not None
-        needed: dict[str, tuple[str, str, tuple[str, ...]]] = {base: (base, bsrc, bparams)}
+    def priors_needed(self) -> list[PriorSpec]:
+        """Every prior the arms train on, and always the gaze source's own: the perturbed controls are made
+        from it and the align stage measures every arm against it (a baseline-only experiment too)."""
+        gaze = gaze_prior(self.cfg)
+        needed = {gaze.name: gaze}
         for arm in self.cfg.arms:
-            name, source, params = arm_prior(arm, self.cfg)
-            if name is not None and source is not None:
-                needed[name] = (name, source, params)
+            prior = arm_prior(arm, self.cfg)
+            if prior is not None:
+                needed[prior.name] = prior
         return list(needed.values())
 
     def stage_priors(self, _: dict[str, Any]) -> dict[str, Any]:
-        from gazereg.gaze.priors import PriorsConfig, make_priors
-
         c = self.cfg
         made = []
         glc = self.train_glc() if trains_glc(c) else None
         for store in (self.store, self.heldout):
-            for name, source, params in self.priors_needed():
+            for prior in self.priors_needed():
                 make_priors(
                     PriorsConfig(
                         store=store,
-                        source=source,
-                        source_params=params,
-                        name=name,
+                        source=prior.source,
+                        name=prior.name,
                         camera=c.camera,
                         size=c.prior_size,
                         aggregation=c.aggregation,
                     )
                 )
-                made.append(f"{store.name}/{name}")
+                made.append(f"{store.name}/{prior.name}")
         return {"priors": made, "glc": glc}
 
     def train_glc(self) -> dict[str, Any]:
         """Train the small GLC on the gaze source's points of the GLC demonstrations (resumes; every 5th
         episode per task held out for its F1/AUC against a centre prior), for the glc arm's priors."""
-        from gazereg.gaze.glc.cli import GLCTrainCommand, train_command
-
         c = self.cfg
-        base = GLCTrainCommand()
-        info = train_command(
+        base = GLCStoreTrainConfig()
+        trained = train_glc_on_store(
             replace(
                 base,
                 store=self.glc_store,
                 camera=c.camera,
-                gaze_source=c.gaze_source,
-                gaze_params=c.gaze_params,
+                gaze=c.gaze,
                 out=glc_dir(c),
                 optim=replace(base.optim, steps=c.glc_steps),
             )
         )
-        out: dict[str, Any] = {"checkpoint": str(glc_dir(c) / "final"), "steps": info["steps"], "eval": None}
-        if info.get("eval"):
-            rep = json.loads(Path(info["eval"]).read_text())
+        out: dict[str, Any] = {"checkpoint": str(glc_dir(c) / "final"), "steps": trained.steps, "eval": None}
+        if trained.eval_path is not None:
+            rep = json.loads(trained.eval_path.read_text())
             out["eval"] = {
                 "heldout": rep["episodes"],
                 **{
@@ -215,130 +218,97 @@ class Experiment:
             }
         return out
 
-    def run_dirs(self) -> dict[str, Path]:
+    def run_dirs(self) -> dict[RunId, Path]:
+        """Every run (arm x training seed) and its training folder."""
         return {
-            f"{arm}@s{seed}": self.out / "train" / f"{arm}_s{seed}"
+            RunId(arm, seed): self.out / "train" / f"{arm}_s{seed}"
             for arm in self.cfg.arms
             for seed in self.cfg.train_seeds
         }
 
-    def train_config(self, arm: str, seed: int, run_dir: Path) -> TrainConfig:
+    def train_config(self, run: RunId, run_dir: Path) -> TrainConfig:
         c = self.cfg
-        prior, _, _ = arm_prior(arm, c)
-        every = max(
-            1, math.ceil(c.train.steps / max(1, c.convergence_points))
-        )  # the last save is the final step
+        prior = arm_prior(run.arm, c)
+        prior_name = prior.name if prior is not None else None
+        # evenly spaced saves for the convergence curve; the last one is the final step
+        every = max(1, math.ceil(c.train.steps / max(1, c.convergence_points)))
         return replace(
             c.train,
             run_dir=run_dir,
-            seed=seed,
+            seed=run.seed,
             save_every=every,
             eval_every=min(c.train.eval_every, every),
             progress=False,
             threads=c.threads_per_run,
             data=replace(c.train.data, store=self.store),
-            gaze=replace(c.train.gaze, prior=prior, camera=c.camera if prior else None),
+            gaze=replace(c.train.gaze, prior=prior_name, camera=c.camera if prior_name else None),
         )
 
     def stage_train(self, _: dict[str, Any]) -> dict[str, Any]:
-        jobs = [
-            (name, self.train_config(name.split("@")[0], int(name.split("@s")[1]), d))
-            for name, d in self.run_dirs().items()
-        ]
+        jobs = [(run, self.train_config(run, d)) for run, d in self.run_dirs().items()]
         if self.cfg.parallel <= 1:
             finished = [_train_one(cfg) for _, cfg in jobs]
         else:
             with ProcessPoolExecutor(self.cfg.parallel, mp_context=get_context("spawn")) as ex:
                 finished = list(ex.map(_train_one, [cfg for _, cfg in jobs]))
-        return {"runs": {name: res for (name, _), res in zip(jobs, finished)}}
+        return {"runs": {str(run): res for (run, _), res in zip(jobs, finished)}}
 
-    def final_checkpoints(self, results: dict[str, Any]) -> dict[str, str]:
-        return {name: r["checkpoint"] for name, r in results["train"]["runs"].items()}
+    def final_checkpoints(self, results: dict[str, Any]) -> dict[RunId, str]:
+        return {RunId.parse(name): r["checkpoint"] for name, r in results["train"]["runs"].items()}
+
+    def evaluate_checkpoints(
+        self, checkpoints: dict[RunId, str], folder: str, **eval_changes: Any
+    ) -> dict[str, Any]:
+        """Evaluate `checkpoints` (each named by its run) into `out/folder`; `eval_changes` override the
+        experiment's evaluation settings."""
+        ecfg = replace(
+            self.cfg.eval,
+            tasks=self.cfg.tasks,
+            out=self.out / folder,
+            checkpoints=tuple(f"{run}={path}" for run, path in checkpoints.items()),
+            **eval_changes,
+        )
+        info = evaluate(ecfg)
+        return {"eval_info": str(self.out / folder / "eval_info.json"), "episodes": len(info["episodes"])}
 
     def stage_eval(self, results: dict[str, Any]) -> dict[str, Any]:
-        ckpts = self.final_checkpoints(results)
-        ecfg = replace(
-            self.cfg.eval,
-            tasks=self.cfg.tasks,
-            out=self.out / "eval",
-            checkpoints=tuple(f"{k}={v}" for k, v in ckpts.items()),
-        )
-        info = evaluate(ecfg)
-        return {"eval_info": str(self.out / "eval" / "eval_info.json"), "episodes": len(info["episodes"])}
+        return self.evaluate_checkpoints(self.final_checkpoints(results), "eval")
 
     def stage_converge(self, results: dict[str, Any]) -> dict[str, Any]:
-        from gazereg.training.checkpoint import list_checkpoints
-
         ckpts = {}  # intermediate checkpoints only: the final ones' clean results come from the eval stage
-        for name, d in self.run_dirs().items():
+        for run, d in self.run_dirs().items():
             for step, path in list_checkpoints(d):
                 if step < self.cfg.train.steps:
-                    ckpts[f"{name}#{step}"] = str(path)
+                    ckpts[run.at_step(step)] = str(path)
         if not ckpts:
             return {"eval_info": None, "episodes": 0}
-        ecfg = replace(
-            self.cfg.eval,
-            tasks=self.cfg.tasks,
-            out=self.out / "converge",
-            conditions=("clean",),
-            videos=0,
-            episodes=self.cfg.convergence_episodes,
-            checkpoints=tuple(f"{k}={v}" for k, v in ckpts.items()),
+        return self.evaluate_checkpoints(
+            ckpts, "converge", conditions=("clean",), videos=0, episodes=self.cfg.convergence_episodes
         )
-        info = evaluate(ecfg)
-        return {"eval_info": str(self.out / "converge" / "eval_info.json"), "episodes": len(info["episodes"])}
 
     def stage_align(self, results: dict[str, Any]) -> dict[str, Any]:
-        from gazereg.data.store import EpisodeStore
-        from gazereg.evaluation.alignment import alignment_report, attention_maps
-        from gazereg.policies import load_policy
-
         c = self.cfg
         store = EpisodeStore(self.heldout)
-        gaze_prior, _, _ = arm_prior("gaze", c)
+        gaze = gaze_prior(c).name
         episodes = store.indices()
-        report, maps_by_arm = {}, {}
-        for name, ckpt in self.final_checkpoints(results).items():
+        report, maps_by_run = {}, {}
+        for run, ckpt in self.final_checkpoints(results).items():
             policy = load_policy(ckpt)
-            layers = c.train.gaze.layers
-            maps = attention_maps(policy, store, episodes, c.camera, gaze_prior, layers)
-            report[name] = alignment_report(maps)
-            maps_by_arm[name] = (policy, maps)
-        figure = self.attention_figure(store, maps_by_arm, gaze_prior)
+            maps = attention_maps(policy, store, episodes, c.camera, gaze, c.train.gaze.layers)
+            report[str(run)] = alignment_report(maps)
+            maps_by_run[run] = (policy, maps)
+        figure = self.attention_figure(store, maps_by_run, gaze)
         return {"alignment": report, "figure": figure}
 
-    def attention_figure(self, store: Any, maps_by_arm: dict[str, Any], gaze_prior: str | None) -> str:
-        """Observation | gaze | each arm's attention (first training seed), on frames spread over held-out episodes."""
-        import numpy as np
-
-        from gazereg.patches import grid_to_image
-        from gazereg.report import plot_attention
-
-        c = self.cfg
+    def attention_figure(self, store: EpisodeStore, maps_by_run: dict[RunId, Any], gaze: str) -> str:
+        """Observation | gaze | each arm's attention (first training seed), on frames spread over held-out
+        episodes; returns the figure's path relative to the run folder."""
         first: dict[str, Any] = {}
-        for name, v in maps_by_arm.items():
-            first.setdefault(name.split("@")[0], v)
-        any_maps = next(iter(first.values()))[1]
-        ep_t = any_maps["episode_t"].numpy()
-        rows = np.linspace(0, len(ep_t) - 1, c.figure_frames + 2).round().astype(int)[1:-1]
-        panels = []
-        for r in rows:
-            ep, t = int(ep_t[r, 0]), int(ep_t[r, 1])
-            episode = store.read(ep, cameras=[c.camera])
-            frame = np.asarray(episode.frames[c.camera][t])
-            panel: dict[str, Any] = {"title": f"{episode.task} t={t}", "frame": frame}
-            if gaze_prior:
-                heat, _ = store.read_prior(gaze_prior, ep)
-                panel["gaze prior"] = heat[t]
-            for arm, (policy, maps) in first.items():
-                panel[f"{arm} attention"] = grid_to_image(
-                    maps["attention"][r], policy.geometry(c.camera), frame.shape[:2]
-                ).numpy()
-            panels.append(panel)
-        columns = (["gaze prior"] if gaze_prior else []) + [f"{arm} attention" for arm in first]
+        for run, v in maps_by_run.items():
+            first.setdefault(run.arm, v)
         path = self.out / "figures" / "attention.png"
         path.parent.mkdir(parents=True, exist_ok=True)
-        plot_attention(panels, columns, path)
+        plot_attention(*attention_panels(store, first, gaze, self.cfg.camera, self.cfg.figure_frames), path)
         return str(path.relative_to(self.out))
 
     def results_date(self) -> str:
@@ -348,126 +318,35 @@ class Experiment:
         when = datetime.fromtimestamp(max(times), timezone.utc) if times else datetime.now(timezone.utc)
         return when.strftime("%Y-%m-%d %H:%M UTC")
 
+    def stage_outputs(self, results: dict[str, Any]) -> StageOutputs:
+        """What the finished stages produced, for the report."""
+        conv_info = results["converge"]["eval_info"]
+        train_runs = results["train"]["runs"]
+        return StageOutputs(
+            episodes=_episodes(results["eval"]["eval_info"]),
+            checkpoint_episodes=_episodes(conv_info) if conv_info else [],
+            demos=results["demos"]["train"],
+            glc=results["priors"].get("glc"),
+            final_metrics={RunId.parse(n): r.get("final_metrics", {}) for n, r in train_runs.items()},
+            metrics_files={run: d / "metrics.jsonl" for run, d in self.run_dirs().items()},
+            alignment={RunId.parse(n): v for n, v in results["align"]["alignment"].items()},
+            attention_figure=results["align"]["figure"],
+            date=self.results_date(),
+            stage_times=dict(self.times),
+        )
+
     def stage_report(self, results: dict[str, Any]) -> dict[str, Any]:
-        from gazereg.report import (
-            convergence,
-            distance_table,
-            machine_summary,
-            markdown,
-            paired_distance_tests,
-            paired_tests,
-            per_seed_table,
-            plot_convergence,
-            plot_success,
-            success_table,
-            verdict,
-        )
-        from gazereg.training.logger import read_metrics
-
-        c = self.cfg
-        ev = json.loads(Path(results["eval"]["eval_info"]).read_text())
-        success = success_table(ev["episodes"])
-        # Each arm against the baseline, and the gaze arm against its own perturbed-gaze control.
-        control = _gaze_and_control(ev["episodes"], c.arms)
-        paired = {**paired_tests(ev["episodes"]), **paired_tests(control, "perturbed")}
-        conv_path = results["converge"]["eval_info"]
-        conv_records = json.loads(Path(conv_path).read_text())["episodes"] if conv_path else []
-        last_seed = c.eval.seed_start + min(c.convergence_episodes, c.eval.episodes)
-        final_clean = [
-            {**r, "arm": f"{r['arm']}#{c.train.steps}"}
-            for r in ev["episodes"]
-            if r["condition"] == "clean" and r["seed"] < last_seed
-        ]
-        curves: dict[str, dict[int, list[int]]] = {}
-        for r in conv_records + final_clean:
-            name, step = r["arm"].rsplit("#", 1)
-            cell = curves.setdefault(name.split("@")[0], {}).setdefault(int(step), [0, 0])
-            cell[0] += int(r["success"])
-            cell[1] += 1
-        conv = convergence(
-            {a: {s: (k, n) for s, (k, n) in pts.items()} for a, pts in curves.items()}, c.threshold
-        )
-        losses = {}
-        for name, d in self.run_dirs().items():
-            if name.endswith(f"@s{c.train_seeds[0]}"):
-                recs = read_metrics(d / "metrics.jsonl")
-                losses[name.split("@")[0]] = [
-                    (r["step"], r["loss/action"], r.get("val/gaze_kl")) for r in recs if "loss/action" in r
-                ]
-        figs = self.out / "figures"
-        figs.mkdir(parents=True, exist_ok=True)
-        plot_success(success, figs / "success.png")
-        plot_convergence(conv, losses, figs / "convergence.png")
-        demos = results["demos"]["train"]
-        report = {
-            "preset": self.preset,
-            "date": self.results_date(),
-            "machine": machine_summary(),
-            "wall_time_s": sum(self.times.values()),
-            "stage_times_s": dict(self.times),
-            "tasks": list(c.tasks),
-            "demos": {"episodes": demos.get("episodes"), "frames": demos.get("frames")},
-            "train": {
-                "steps": c.train.steps,
-                "batch_size": c.train.batch_size,
-                "seeds": list(c.train_seeds),
-                "gaze_weight": c.train.gaze.weight,
-                "gaze_layers": list(c.train.gaze.layers),
-                "arms": list(c.arms),
-            },
-            "eval": {
-                "episodes": c.eval.episodes,
-                "conditions": list(c.eval.conditions),
-                "seeds": f"{c.eval.seed_start}..{c.eval.seed_start + c.eval.episodes - 1}",
-            },
-            "success": success,
-            "paired": paired,
-            "per_seed": per_seed_table(ev["episodes"]) if len(c.train_seeds) > 1 else None,
-            "distance": {
-                "table": distance_table(ev["episodes"]),
-                "paired": {
-                    **paired_distance_tests(ev["episodes"]),
-                    **paired_distance_tests(control, reference="perturbed"),
-                },
-            },
-            "verdict": verdict(success, paired=paired)
-            + (verdict(success_table(control), "perturbed", paired) if control else []),
-            "convergence": conv,
-            "glc": results["priors"].get("glc"),
-            "val_loss": {
-                name: r.get("final_metrics", {}).get("val/loss_action")
-                for name, r in results["train"]["runs"].items()
-            },
-            "alignment": {
-                n.split("@")[0] if len(c.train_seeds) == 1 else n: v
-                for n, v in results["align"]["alignment"].items()
-            },
-            "figures": {
-                "success": "figures/success.png",
-                "convergence": "figures/convergence.png",
-                "attention": results["align"]["figure"],
-            },
-            "videos": [str(Path(e["video"]).relative_to(self.out)) for e in ev["episodes"] if e.get("video")],
-            "config": to_dict(c),
-        }
-        atomic_write_json(self.out / "report.json", report)
-        atomic_write_text(self.out / "report.md", markdown(report))
-        return {"report": str(self.out / "report.md")}
+        report = build_report(report_spec(self.cfg, self.preset), self.stage_outputs(results), self.out)
+        return {"report": str(write_report(self.out, report))}
 
 
-def _gaze_and_control(records: list[dict[str, Any]], arms: tuple[str, ...]) -> list[dict[str, Any]]:
-    """The episodes of the gaze arm and its perturbed-gaze control, the report's second reference (every arm
-    is also compared with the baseline); empty when the run lacks either arm."""
-    if not {"gaze", "perturbed"} <= set(arms):
-        return []
-    return [r for r in records if base_arm(r["arm"]) in ("gaze", "perturbed")]
+def _episodes(eval_info: str) -> list[dict[str, Any]]:
+    """The evaluation records of an eval_info.json."""
+    return json.loads(Path(eval_info).read_text())["episodes"]
 
 
 def _train_one(cfg: TrainConfig) -> dict[str, Any]:
     """Train one run to completion, resuming from its newest checkpoint if it has one."""
-    from gazereg.training.checkpoint import latest_checkpoint, list_checkpoints
-    from gazereg.training.loop import train
-
     logging.basicConfig(level=logging.WARNING)
     done = [s for s, _ in list_checkpoints(cfg.run_dir) if s >= cfg.steps]
     if done:
@@ -483,8 +362,6 @@ def _train_one(cfg: TrainConfig) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from gazereg.runtime.config import parse, split_preset
-
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     args = sys.argv[1:] if argv is None else argv
     preset, _ = split_preset(args, "quick")

@@ -12,7 +12,6 @@ an interrupted run resumes, and a rerun with different settings under the same n
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import os
 import sys
@@ -24,7 +23,14 @@ from tqdm import tqdm
 
 from gazereg.data.store import EpisodeStore
 from gazereg.gaze.aggregation import AggregationConfig, aggregate
-from gazereg.gaze.sources import GazeSource, make_gaze_source
+from gazereg.gaze.sources import (
+    GazeSource,
+    GazeSourceParams,
+    gaze_source_params,
+    make_gaze_source,
+    parse_source_params,
+)
+from gazereg.runtime.config import parse
 from gazereg.runtime.version import __version__
 
 log = logging.getLogger(__name__)
@@ -34,10 +40,9 @@ log = logging.getLogger(__name__)
 class PriorsConfig:
     store: Path = Path("data/demos")
     """episode store to read and write priors into"""
-    source: str = "visuomotor"
-    """gaze source: uniform | saliency | perturbed | recorded | visuomotor | glc | a registered plugin"""
-    source_params: tuple[str, ...] = ()
-    """source parameters as key=value (values parsed as JSON when possible)"""
+    source: GazeSourceParams | str = "visuomotor"
+    """the gaze source: its parameters (their class names the source), or a registered source's name for its
+    default parameters"""
     name: str | None = None
     """prior name in the store (default: the source name)"""
     camera: str = "corner2"
@@ -48,17 +53,30 @@ class PriorsConfig:
     """recompute every episode even if done (and accept changed settings)"""
 
 
-def parse_params(items: tuple[str, ...] | list[str]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for item in items:
-        if "=" not in item:
-            raise ValueError(f"source parameter {item!r} must be key=value")
-        k, v = item.split("=", 1)
-        try:
-            out[k] = json.loads(v)
-        except json.JSONDecodeError:
-            out[k] = v
-    return out
+@dataclass(frozen=True)
+class PriorsCommand:
+    """`gazereg priors`: `PriorsConfig` with the gaze source named and its parameters written as text."""
+
+    store: Path = Path("data/demos")
+    """episode store to read and write priors into"""
+    source: str = "visuomotor"
+    """gaze source: uniform | saliency | perturbed | recorded | visuomotor | glc | a registered plugin"""
+    source_params: tuple[str, ...] = ()
+    """source parameters as key=value (e.g. checkpoint=runs/glc/final stride=1)"""
+    name: str | None = None
+    """prior name in the store (default: the source name)"""
+    camera: str = "corner2"
+    size: tuple[int, int] = (64, 64)
+    """(h, w) of the stored heatmaps"""
+    aggregation: AggregationConfig = field(default_factory=lambda: AggregationConfig(past=2, future=2))
+    overwrite: bool = False
+    """recompute every episode even if done (and accept changed settings)"""
+
+    def config(self) -> PriorsConfig:
+        """The typed configuration; unknown source parameters and unreadable values are errors."""
+        fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        del fields["source_params"]
+        return PriorsConfig(**{**fields, "source": parse_source_params(self.source, self.source_params)})
 
 
 def prior_record(source: GazeSource, cfg: PriorsConfig) -> dict[str, Any]:
@@ -74,10 +92,11 @@ def prior_record(source: GazeSource, cfg: PriorsConfig) -> dict[str, Any]:
 def make_priors(cfg: PriorsConfig, rank: int = 0, world: int = 1, progress: bool = True) -> str:
     """Compute and store priors for every episode of the store (this process's shard); returns the name."""
     store = EpisodeStore(cfg.store)
-    source = make_gaze_source(cfg.source, **parse_params(cfg.source_params))
+    params = cfg.source if isinstance(cfg.source, GazeSourceParams) else gaze_source_params(cfg.source)
+    source = make_gaze_source(params)
     if hasattr(source, "bind"):
         source.bind(store)
-    name = cfg.name or cfg.source
+    name = cfg.name or params.name
     record = prior_record(source, cfg)
     existing = store.prior_dir(name) / "prior.json"
     if existing.exists() and not cfg.overwrite:
@@ -106,15 +125,18 @@ def make_priors(cfg: PriorsConfig, rank: int = 0, world: int = 1, progress: bool
 
 
 def main(argv: list[str] | None = None) -> int:
-    from gazereg.runtime.config import parse
-
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    cfg = parse(
-        {"default": PriorsConfig},
+    command = parse(
+        {"default": PriorsCommand},
         sys.argv[1:] if argv is None else argv,
         prog="gazereg priors",
         description=__doc__ or "",
     )
+    try:
+        cfg = command.config()
+    except (KeyError, ValueError, TypeError) as e:
+        print(f"gazereg priors: {e}", file=sys.stderr)
+        return 2
     # `accelerate launch` / torchrun set these; each process takes every world-th episode (no sync needed).
     rank, world = int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1))
     name = make_priors(cfg, rank=rank, world=world, progress=rank == 0)

@@ -13,6 +13,7 @@ config is restored.
 
 from __future__ import annotations
 
+import functools
 import sys
 from collections.abc import Callable
 from contextvars import ContextVar
@@ -40,7 +41,6 @@ class Capture:
 
 
 CAPTURE: ContextVar[Capture | None] = ContextVar("gazereg_hf_capture", default=None)
-_EAGER_CACHE: dict[type, Callable[..., Any]] = {}
 
 
 def _generic_eager(module, query, key, value, attention_mask, scaling=None, dropout=0.0, **kwargs):
@@ -59,14 +59,14 @@ def _generic_eager(module, query, key, value, attention_mask, scaling=None, drop
     return torch.matmul(w, v).transpose(1, 2).contiguous(), w
 
 
+@functools.cache
+def _eager_of_class(cls: type) -> Callable[..., Any]:
+    return getattr(sys.modules.get(cls.__module__), "eager_attention_forward", None) or _generic_eager
+
+
 def _eager_for(module: nn.Module) -> Callable[..., Any]:
     """The eager attention of the module's own modeling file (what `attn_implementation="eager"` runs)."""
-    cls = type(module)
-    fn = _EAGER_CACHE.get(cls)
-    if fn is None:
-        fn = getattr(sys.modules.get(cls.__module__), "eager_attention_forward", None) or _generic_eager
-        _EAGER_CACHE[cls] = fn
-    return fn
+    return _eager_of_class(type(module))
 
 
 def gaze_attention_name(base: str) -> str:

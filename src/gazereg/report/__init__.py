@@ -1,17 +1,19 @@
-"""The experiment's report: tables and tests (`tables`), figures (`figures`), report.md and README blocks
-(`markdown`). Every number comes from the experiment's own records."""
+"""The experiment's report: run identities (`ids`), tables and tests (`tables`), figures (`figures`), the
+assembled report (`build`), report.md and results blocks (`markdown`). Every number comes from the experiment's
+own records."""
 
+from gazereg.report.build import ReportSpec, StageOutputs, build_report, write_report
 from gazereg.report.figures import plot_attention, plot_convergence, plot_success
+from gazereg.report.ids import RunId
 from gazereg.report.markdown import (
     distance_lines,
     fmt_cell,
+    headline_lines,
     markdown,
-    readme_block,
-    replace_block,
-    update_readme,
+    results_block,
 )
 from gazereg.report.tables import (
-    base_arm,
+    checkpoint_tally,
     convergence,
     distance_table,
     machine_summary,
@@ -19,16 +21,22 @@ from gazereg.report.tables import (
     paired_distance_tests,
     paired_tests,
     per_seed_table,
+    run_of,
     success_table,
     verdict,
 )
 
 __all__ = [
-    "base_arm",
+    "ReportSpec",
+    "RunId",
+    "StageOutputs",
+    "build_report",
+    "checkpoint_tally",
     "convergence",
     "distance_lines",
     "distance_table",
     "fmt_cell",
+    "headline_lines",
     "machine_summary",
     "markdown",
     "overlap",
@@ -38,9 +46,9 @@ __all__ = [
     "plot_attention",
     "plot_convergence",
     "plot_success",
-    "readme_block",
-    "replace_block",
+    "results_block",
+    "run_of",
     "success_table",
-    "update_readme",
     "verdict",
+    "write_report",
 ]

@@ -16,8 +16,9 @@ import json
 from pathlib import Path
 from typing import Any
 
+from gazereg.report.ids import RunId
 from gazereg.report.markdown import rate_difference
-from gazereg.report.tables import base_arm, paired_distance_tests, paired_tests, success_table
+from gazereg.report.tables import paired_distance_tests, paired_tests, run_of, success_table
 from gazereg.runtime.config import config_diff
 from gazereg.runtime.io import atomic_write_json, atomic_write_text
 
@@ -35,13 +36,17 @@ def load_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
 
 
 def _relabel(records: list[dict[str, Any]], arm: str, label: str) -> list[dict[str, Any]]:
-    """One arm's records with the arm renamed to `label`, keeping the training seed (`arm@seed`)."""
+    """One arm's records with the arm renamed to `label`, keeping the training seed."""
     out = []
     for r in records:
-        name, _, seed = r["arm"].partition("@")
-        if name == arm:
-            out.append({**r, "arm": f"{label}@{seed}"})
+        run = run_of(r)
+        if run.arm == arm:
+            out.append({**r, "arm": str(RunId(label, run.seed, run.step))})
     return out
+
+
+def _arms(records: list[dict[str, Any]]) -> set[str]:
+    return {run_of(r).arm for r in records}
 
 
 def compare_records(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
@@ -49,7 +54,7 @@ def compare_records(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> dict[st
     distance}} for every arm and condition both runs evaluated. `a_only`/`b_only` count the paired setups only
     that run solved; `rate_diff` is B's success rate minus A's on the paired setups, `rate_ci95` its 95%
     interval; `distance` is the paired closest-approach difference B - A (negative: B came closer), or None."""
-    shared_arms = sorted({base_arm(r["arm"]) for r in a} & {base_arm(r["arm"]) for r in b})
+    shared_arms = sorted(_arms(a) & _arms(b))
     out: dict[str, dict[str, Any]] = {}
     for arm in shared_arms:
         # Run A and run B as two arms of one experiment: the paired tests of B against reference A.
@@ -73,8 +78,8 @@ def compare_records(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> dict[st
     if not out:
         raise ValueError(
             "the two runs share no evaluated episode (same arm, training seed, task, condition and setup seed); "
-            f"A has arms {sorted({base_arm(r['arm']) for r in a})} on setups {_seed_span(a)}, "
-            f"B has arms {sorted({base_arm(r['arm']) for r in b})} on setups {_seed_span(b)}"
+            f"A has arms {sorted(_arms(a))} on setups {_seed_span(a)}, "
+            f"B has arms {sorted(_arms(b))} on setups {_seed_span(b)}"
         )
     return out
 

@@ -7,6 +7,10 @@ from typing import Any
 
 import numpy as np
 
+from gazereg.data.store import EpisodeStore
+from gazereg.patches import grid_to_image
+from gazereg.viz.overlay import overlay
+
 
 def _plt():
     import matplotlib
@@ -72,10 +76,42 @@ def plot_convergence(
     return path
 
 
+def attention_panels(
+    store: EpisodeStore,
+    maps_by_arm: dict[str, tuple[Any, dict[str, Any]]],
+    gaze_prior: str | None,
+    camera: str,
+    frames: int,
+) -> tuple[list[dict[str, Any]], list[str]]:
+    """`plot_attention`'s panels and columns: `frames` frames spread evenly over the held-out frames the
+    attention maps cover, each with the stored gaze prior (when named) and every arm's attention.
+
+    maps_by_arm: {arm: (policy, maps)}, maps as `evaluation.alignment.attention_maps` returns them (the same
+    frames for every arm): "episode_t" (N, 2) episode index and frame, "attention" (N, n_patches) on the
+    policy's patch grid of `camera`, turned into (H, W) images of the frame's size."""
+    any_maps = next(iter(maps_by_arm.values()))[1]
+    ep_t = any_maps["episode_t"].numpy()
+    rows = np.linspace(0, len(ep_t) - 1, frames + 2).round().astype(int)[1:-1]
+    panels = []
+    for r in rows:
+        ep, t = int(ep_t[r, 0]), int(ep_t[r, 1])
+        episode = store.read(ep, cameras=[camera])
+        frame = np.asarray(episode.frames[camera][t])
+        panel: dict[str, Any] = {"title": f"{episode.task} t={t}", "frame": frame}
+        if gaze_prior:
+            heat, _ = store.read_prior(gaze_prior, ep)
+            panel["gaze prior"] = heat[t]
+        for arm, (policy, maps) in maps_by_arm.items():
+            panel[f"{arm} attention"] = grid_to_image(
+                maps["attention"][r], policy.geometry(camera), frame.shape[:2]
+            ).numpy()
+        panels.append(panel)
+    columns = (["gaze prior"] if gaze_prior else []) + [f"{arm} attention" for arm in maps_by_arm]
+    return panels, columns
+
+
 def plot_attention(panels: list[dict[str, Any]], columns: list[str], path: Path) -> Path:
     """panels: one row each: {"title": str, "frame": (H, W, 3) uint8, column: (H, W) heat or None}."""
-    from gazereg.viz.overlay import overlay
-
     plt = _plt()
     cols = ["observation", *columns]
     fig, axes = plt.subplots(

@@ -1,12 +1,33 @@
-"""The experiment's report as text: report.md and the README's results blocks."""
+"""The experiment's report as markdown text, rendered from report.json (a dict); nothing here writes files.
+
+- `markdown(report)`: the whole report.md of one run.
+- `results_block(report, figure)`: the shorter block that scripts/update_results.py puts into docs/results.md;
+  its head, `headline_lines(report)` (the run line and the success table), is the README's headline.
+
+Every `*_lines` function returns markdown lines (no trailing newlines) for one section, or [] when the report
+lacks that section's data.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
+# attention-vs-gaze metrics shown, in this column order: report.md shows them all, the results block a subset
+REPORT_ALIGNMENT_KEYS = (
+    "gaze_kl",
+    "gaze_cc",
+    "gaze_sim",
+    "gaze_nss",
+    "gaze_auc_judd",
+    "object_mass",
+    "object_mass_chance",
+)
+BLOCK_ALIGNMENT_KEYS = ("gaze_kl", "gaze_cc", "gaze_auc_judd", "object_mass", "object_mass_chance")
+
 
 def fmt_cell(c: dict[str, Any]) -> str:
+    """One success cell, `successes/n = rate [lo, hi]` (Wilson 95%), from a success-table entry."""
     return f"{c['successes']}/{c['n']} = {c['rate']:.2f} [{c['ci95'][0]:.2f}, {c['ci95'][1]:.2f}]"
 
 
@@ -167,164 +188,174 @@ def distance_lines(report: dict[str, Any], conds: list[str]) -> list[str]:
     return lines
 
 
-def markdown(report: dict[str, Any]) -> str:
-    t = report["success"]
-    arms = list(t)
-    conds = list(next(iter(t.values())))
-    lines = [
-        f"# gazereg experiment: preset `{report['preset']}`",
-        "",
-        f"{report['date']} on {report['machine']['summary']}; wall time {report['wall_time_s'] / 60:.1f} min.",
-        "",
-        f"Tasks: {', '.join(report['tasks'])}. Demonstrations: {report['demos']['episodes']} episodes "
-        f"({report['demos']['frames']} frames) on training setups; evaluation on {report['eval']['episodes']} unseen setups "
-        f"per task and condition (seeds {report['eval']['seeds']}), identical for every arm. Training: "
-        f"{report['train']['steps']} steps, batch {report['train']['batch_size']}, seeds {report['train']['seeds']}; "
-        f"gaze weight {report['train']['gaze_weight']} on layers {report['train']['gaze_layers']}.",
-        "",
-        "## Success (pooled over tasks and training seeds; Wilson 95% intervals)",
-        "",
+def conditions(report: dict[str, Any]) -> list[str]:
+    """The evaluation conditions in the report's order (the first arm's), e.g. ["clean", "dim:0.7"]."""
+    return list(next(iter(report["success"].values())))
+
+
+def success_table_lines(report: dict[str, Any]) -> list[str]:
+    """Success per arm and condition, pooled over tasks and training seeds, with Wilson 95% intervals."""
+    t, conds = report["success"], conditions(report)
+    return [
         "| arm | " + " | ".join(conds) + " |",
         "|---|" + "---|" * len(conds),
+        *[f"| {a} | " + " | ".join(fmt_cell(t[a][c]) for c in conds) + " |" for a in t],
     ]
-    lines += [f"| {a} | " + " | ".join(fmt_cell(t[a][c]) for c in conds) + " |" for a in arms]
-    lines += ["", *per_task_lines(report), *per_seed_lines(report)]
-    lines += [
-        "",
+
+
+def drop_lines(report: dict[str, Any]) -> list[str]:
+    """Each arm's success under every perturbed condition minus its clean success (rate points)."""
+    t, conds = report["success"], conditions(report)
+    return [
         "Drop from clean (success rate points):",
         "",
         "| arm | " + " | ".join(conds[1:]) + " |",
         "|---|" + "---|" * max(1, len(conds) - 1),
+        *[
+            f"| {a} | " + " | ".join(f"{t[a][c]['drop_from_clean']:+.2f}" for c in conds[1:]) + " |"
+            for a in t
+        ],
     ]
-    lines += [
-        f"| {a} | " + " | ".join(f"{t[a][c]['drop_from_clean']:+.2f}" for c in conds[1:]) + " |" for a in arms
+
+
+def alignment_table_lines(alignment: dict[str, dict[str, float]], keys: tuple[str, ...]) -> list[str]:
+    """Attention-vs-gaze metrics per arm (rows) for those of `keys` that any arm has (columns; `-` if missing)."""
+    cols = [k for k in keys if any(k in v for v in alignment.values())]
+    return [
+        "| arm | " + " | ".join(cols) + " |",
+        "|---|" + "---|" * len(cols),
+        *[
+            f"| {a} | " + " | ".join(f"{v[k]:.3f}" if k in v else "-" for k in cols) + " |"
+            for a, v in alignment.items()
+        ],
     ]
-    lines += paired_lines(report)
-    lines += distance_lines(report, conds)
-    lines += val_loss_lines(report)
-    lines += ["", "## What the numbers say", "", *report["verdict"], ""]
-    lines += convergence_lines(report)
-    if report.get("glc") and report["glc"].get("eval"):
-        g = report["glc"]["eval"]
-        lines += [
-            "## The glc arm's estimator",
-            "",
-            f"A small GLC trained here for {report['glc']['steps']} steps on other setups' simulated gaze; on its "
-            f"held-out episodes {g['heldout']}: F1 {g['glc_f1']:.3f} (centre prior {g['centre_prior_f1']:.3f}, "
-            f"uniform {g['uniform_f1']:.3f}).",
-            "",
-        ]
-    if report.get("alignment"):
-        al = report["alignment"]
-        keys = [
-            k
-            for k in (
-                "gaze_kl",
-                "gaze_cc",
-                "gaze_sim",
-                "gaze_nss",
-                "gaze_auc_judd",
-                "object_mass",
-                "object_mass_chance",
-            )
-            if any(k in v for v in al.values())
-        ]
-        lines += [
-            "## Attention vs gaze on held-out frames (unseen setups)",
-            "",
-            "| arm | " + " | ".join(keys) + " |",
-            "|---|" + "---|" * len(keys),
-        ]
-        for a, v in al.items():
-            lines.append(f"| {a} | " + " | ".join(f"{v[k]:.3f}" if k in v else "-" for k in keys) + " |")
-        lines += [
-            "",
-            "KL: lower is closer to gaze; CC, SIM, NSS, AUC: higher is closer; object_mass: attention on the 3x3 patches "
-            "around the task object (chance: object_mass_chance).",
-            "",
-        ]
-    lines += ["## Figures", ""] + [f"![{k}]({v})" for k, v in report["figures"].items()] + [""]
+
+
+def header_lines(report: dict[str, Any]) -> list[str]:
+    """The report's title, when and where it ran, and what was trained and evaluated."""
+    demos, ev, tr = report["demos"], report["eval"], report["train"]
+    return [
+        f"# gazereg experiment: preset `{report['preset']}`",
+        "",
+        f"{report['date']} on {report['machine']['summary']}; wall time {report['wall_time_s'] / 60:.1f} min.",
+        "",
+        f"Tasks: {', '.join(report['tasks'])}. Demonstrations: {demos['episodes']} episodes "
+        f"({demos['frames']} frames) on training setups; evaluation on {ev['episodes']} unseen setups "
+        f"per task and condition (seeds {ev['seeds']}), identical for every arm. Training: "
+        f"{tr['steps']} steps, batch {tr['batch_size']}, seeds {tr['seeds']}; "
+        f"gaze weight {tr['gaze_weight']} on layers {tr['gaze_layers']}.",
+    ]
+
+
+def glc_lines(report: dict[str, Any]) -> list[str]:
+    """The glc arm's own estimator: its held-out F1 next to a centre prior and uniform gaze."""
+    if not report.get("glc") or not report["glc"].get("eval"):
+        return []
+    g = report["glc"]["eval"]
+    return [
+        "## The glc arm's estimator",
+        "",
+        f"A small GLC trained here for {report['glc']['steps']} steps on other setups' simulated gaze; on its "
+        f"held-out episodes {g['heldout']}: F1 {g['glc_f1']:.3f} (centre prior {g['centre_prior_f1']:.3f}, "
+        f"uniform {g['uniform_f1']:.3f}).",
+        "",
+    ]
+
+
+def alignment_lines(report: dict[str, Any]) -> list[str]:
+    """The report's attention-vs-gaze section on held-out frames, with how to read each metric."""
+    if not report.get("alignment"):
+        return []
+    return [
+        "## Attention vs gaze on held-out frames (unseen setups)",
+        "",
+        *alignment_table_lines(report["alignment"], REPORT_ALIGNMENT_KEYS),
+        "",
+        "KL: lower is closer to gaze; CC, SIM, NSS, AUC: higher is closer; object_mass: attention on the 3x3 patches "
+        "around the task object (chance: object_mass_chance).",
+        "",
+    ]
+
+
+def media_lines(report: dict[str, Any]) -> list[str]:
+    """Figures, up to 12 rollout videos and the wall time of every stage (seconds)."""
+    lines = ["## Figures", "", *[f"![{k}]({v})" for k, v in report["figures"].items()], ""]
     if report.get("videos"):
         lines += [
             "Videos (policy view | attention overlay): "
             + ", ".join(f"[{Path(v).name}]({v})" for v in report["videos"][:12]),
             "",
         ]
-    lines += ["Stage times (s): " + ", ".join(f"{k} {v:.0f}" for k, v in report["stage_times_s"].items()), ""]
+    return [
+        *lines,
+        "Stage times (s): " + ", ".join(f"{k} {v:.0f}" for k, v in report["stage_times_s"].items()),
+        "",
+    ]
+
+
+def markdown(report: dict[str, Any]) -> str:
+    """The run's report.md: every table the report holds, the verdict, figures and stage times."""
+    lines = [
+        *header_lines(report),
+        "",
+        "## Success (pooled over tasks and training seeds; Wilson 95% intervals)",
+        "",
+        *success_table_lines(report),
+        "",
+        *per_task_lines(report),
+        *per_seed_lines(report),
+        "",
+        *drop_lines(report),
+        *paired_lines(report),
+        *distance_lines(report, conditions(report)),
+        *val_loss_lines(report),
+        "",
+        "## What the numbers say",
+        "",
+        *report["verdict"],
+        "",
+    ]
+    lines += [*convergence_lines(report), *glc_lines(report), *alignment_lines(report), *media_lines(report)]
     return "\n".join(lines)
 
 
-def readme_block(report: dict[str, Any], figure: str) -> str:
-    """The README's results block for one experiment report (everything from the report itself)."""
-    t = report["success"]
-    conds = list(next(iter(t.values())))
+def headline_lines(report: dict[str, Any]) -> list[str]:
+    """The head of `results_block`: one line on the run (when, where, how long, what) and the success table."""
+    tr = report["train"]
     command = (
         "make demo" if report["preset"] == "quick" else f"gazereg experiment --preset {report['preset']}"
     )
-    lines = [
+    return [
         f"Latest `{report['preset']}` run: {report['date']}, {report['machine']['summary']}, wall time "
         f"{report['wall_time_s'] / 60:.1f} min (`{command}`). Tasks: {', '.join(report['tasks'])}; "
-        f"{report['train']['steps']} training steps per arm, seeds {report['train']['seeds']}; "
+        f"{tr['steps']} training steps per arm, seeds {tr['seeds']}; "
         f"{report['eval']['episodes']} unseen setups per task and condition.",
         "",
-        "| arm | " + " | ".join(conds) + " |",
-        "|---|" + "---|" * len(conds),
-        *[f"| {a} | " + " | ".join(fmt_cell(t[a][c]) for c in conds) + " |" for a in t],
-        "",
+        *success_table_lines(report),
     ]
+
+
+def results_block(report: dict[str, Any], figure: str) -> str:
+    """One run's results block for docs/results.md: the headline, attention vs gaze, (for several training
+    seeds) the per-task, per-seed, paired, distance, loss and convergence tables, the verdict and the
+    attention figure at the relative path `figure`. Ends with a newline."""
+    lines = [*headline_lines(report), ""]
     if report.get("alignment"):
-        keys = [
-            k
-            for k in ("gaze_kl", "gaze_cc", "gaze_auc_judd", "object_mass", "object_mass_chance")
-            if any(k in v for v in report["alignment"].values())
-        ]
         lines += [
             "Attention vs gaze on held-out frames:",
             "",
-            "| arm | " + " | ".join(keys) + " |",
-            "|---|" + "---|" * len(keys),
+            *alignment_table_lines(report["alignment"], BLOCK_ALIGNMENT_KEYS),
+            "",
         ]
-        lines += [
-            f"| {a} | " + " | ".join(f"{v[k]:.3f}" if k in v else "-" for k in keys) + " |"
-            for a, v in report["alignment"].items()
-        ]
-        lines.append("")
     if len(report["train"]["seeds"]) > 1:  # the powered comparison: per task, paired tests, distances
-        conds = list(next(iter(report["success"].values())))
         lines += [
             *per_task_lines(report),
             *per_seed_lines(report),
             *paired_lines(report),
-            *distance_lines(report, conds),
+            *distance_lines(report, conditions(report)),
             *val_loss_lines(report),
             "",
             *convergence_lines(report),
         ]
     lines += [*report["verdict"], "", f"![attention]({figure})", ""]
     return "\n".join(lines)
-
-
-def replace_block(readme: Path, marker: str, block: str) -> None:
-    """Replace the README's text between `<!-- {marker}:start -->` and `<!-- {marker}:end -->` with `block`."""
-    from gazereg.runtime.io import atomic_write_text
-
-    start, end = f"<!-- {marker}:start -->", f"<!-- {marker}:end -->"
-    text = readme.read_text()
-    if start not in text or end not in text:
-        raise ValueError(f"{readme} has no {start} ... {end} block")
-    head, rest = text.split(start, 1)
-    _, tail = rest.split(end, 1)
-    atomic_write_text(readme, f"{head}{start}\n{block}{end}{tail}")
-
-
-def update_readme(readme: Path, run_dir: Path, figure_dir: Path, marker: str = "quick-results") -> None:
-    """Replace the README's block between `<!-- {marker}:start -->` and `<!-- {marker}:end -->` with the
-    results of the experiment in `run_dir`, copying its attention figure into `figure_dir`."""
-    import json
-    import shutil
-
-    report = json.loads((run_dir / "report.json").read_text())
-    figure_dir.mkdir(parents=True, exist_ok=True)
-    fig = figure_dir / f"{marker}-attention.png"
-    shutil.copyfile(run_dir / report["figures"]["attention"], fig)
-    replace_block(readme, marker, readme_block(report, str(fig.relative_to(readme.parent))))

@@ -8,10 +8,11 @@ training seed, task and setup seed).
 from __future__ import annotations
 
 import math
+import os
 import platform
 import statistics
 from collections import defaultdict
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 from gazereg.evaluation.stats import (
@@ -22,17 +23,19 @@ from gazereg.evaluation.stats import (
     steps_to_threshold,
     wilson,
 )
+from gazereg.report.ids import RunId
 
 
-def base_arm(name: str) -> str:
-    return name.split("@", 1)[0]
+def run_of(record: dict[str, Any]) -> RunId:
+    """The run an evaluation record belongs to (its `"arm"` field)."""
+    return RunId.parse(record["arm"])
 
 
 def success_table(records: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:
     """{arm: {condition: {successes, n, rate, ci95, per_task: {...}}}} pooled over training seeds."""
     cells: dict[tuple[str, str, str], list[bool]] = defaultdict(list)
     for r in records:
-        cells[(base_arm(r["arm"]), r["condition"], r["task"])].append(bool(r["success"]))
+        cells[(run_of(r).arm, r["condition"], r["task"])].append(bool(r["success"]))
     out: dict[str, dict[str, dict[str, Any]]] = {}
     for (arm, cond, task), xs in sorted(cells.items()):
         c = out.setdefault(arm, {}).setdefault(cond, {"successes": 0, "n": 0, "per_task": {}})
@@ -54,7 +57,7 @@ def per_seed_table(records: list[dict[str, Any]]) -> dict[str, dict[str, list[in
     (the episodes of one training seed are not independent of each other; seeds are)."""
     out: dict[str, dict[str, list[int]]] = {}
     for r in records:
-        cell = out.setdefault(r["arm"], {}).setdefault(r["condition"], [0, 0])
+        cell = out.setdefault(str(run_of(r)), {}).setdefault(r["condition"], [0, 0])
         cell[0] += int(bool(r["success"]))
         cell[1] += 1
     return dict(sorted(out.items()))
@@ -66,12 +69,12 @@ def paired_by_setup(
     """For each arm but `reference` and each condition both have: (name "arm vs reference | condition", arm,
     the arm's values, the reference's values) on the episodes they share, paired by (training seed, task,
     setup seed). `value(record)` is what is compared; records where it is None are left out."""
-    by: dict[tuple[str, str], dict[tuple[str, str, int], Any]] = defaultdict(dict)
+    by: dict[tuple[str, str], dict[tuple[int, str, int], Any]] = defaultdict(dict)
     for r in records:
         v = value(r)
         if v is not None:
-            arm, _, seed = r["arm"].partition("@")
-            by[(arm, r["condition"])][(seed, r["task"], r["seed"])] = v
+            run = run_of(r)
+            by[(run.arm, r["condition"])][(run.seed, r["task"], r["seed"])] = v
     for arm in sorted({a for a, _ in by} - {reference}):
         for (a, cond), xs in by.items():
             ref = by.get((reference, cond))
@@ -108,7 +111,7 @@ def distance_table(records: list[dict[str, Any]], key: str = "min_distance") -> 
     cells: dict[tuple[str, str], list[float]] = defaultdict(list)
     for r in records:
         if key in r:
-            cells[(base_arm(r["arm"]), r["condition"])].append(float(r[key]))
+            cells[(run_of(r).arm, r["condition"])].append(float(r[key]))
     out: dict[str, dict[str, Any]] = {}
     for (arm, cond), xs in sorted(cells.items()):
         mean, sd = sum(xs) / len(xs), statistics.stdev(xs) if len(xs) > 1 else 0.0
@@ -124,6 +127,19 @@ def paired_distance_tests(
     setup seed): mean difference (negative: closer than the reference), 95% interval, permutation p."""
     pairs = paired_by_setup(records, lambda r: float(r[key]) if key in r else None, reference)
     return {name: paired_mean_difference(x, y) for name, _, x, y in pairs}
+
+
+def checkpoint_tally(points: Iterable[tuple[RunId, bool]]) -> dict[str, dict[int, tuple[int, int]]]:
+    """{arm: {training step: (successes, episodes)}} pooled over training seeds, from (run at a checkpoint,
+    success) pairs; every run must name its step. Arms and steps keep the order they first appear in."""
+    cells: dict[str, dict[int, list[int]]] = {}
+    for run, success in points:
+        if run.step is None:
+            raise ValueError(f"run {run} names no training step: a convergence point needs one")
+        cell = cells.setdefault(run.arm, {}).setdefault(run.step, [0, 0])
+        cell[0] += int(success)
+        cell[1] += 1
+    return {arm: {step: (k, n) for step, (k, n) in pts.items()} for arm, pts in cells.items()}
 
 
 def convergence(curves: dict[str, dict[int, tuple[int, int]]], threshold: float) -> dict[str, Any]:
@@ -196,8 +212,6 @@ def verdict(
 
 
 def machine_summary() -> dict[str, Any]:
-    import os
-
     import torch
 
     return {

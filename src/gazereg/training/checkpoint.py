@@ -29,6 +29,7 @@ import torch
 from safetensors.torch import load_file, save_file
 from torch import Tensor
 
+from gazereg.policies import Policy
 from gazereg.runtime.io import atomic_dir
 
 STEP_RE = re.compile(r"^step_(\d{6,})$")
@@ -163,7 +164,7 @@ def set_rng_state(state: Mapping[str, Any]) -> None:
 def save_checkpoint(
     run_dir: str | Path,
     step: int,
-    policy: Any,
+    policy: Policy,
     optimizer: torch.optim.Optimizer,
     scheduler: Any,
     state: Mapping[str, Any],
@@ -192,7 +193,11 @@ def save_checkpoint(
 
 
 def load_checkpoint(
-    path: str | Path, policy: Any, optimizer: torch.optim.Optimizer, scheduler: Any, restore_rng: bool = True
+    path: str | Path,
+    policy: Policy,
+    optimizer: torch.optim.Optimizer,
+    scheduler: Any,
+    restore_rng: bool = True,
 ) -> dict[str, Any]:
     """Restore raw weights, optimizer, scheduler (and RNG) from a checkpoint; returns state.json (with the EMA
     state dict under 'ema_state_dict' when the checkpoint holds one)."""

@@ -5,7 +5,8 @@
     paper()   a GPU-sized run
 
 `gazereg train --preset NAME` starts from PRESETS[NAME]; every field can be overridden on the command line
-(e.g. --gaze.prior visuomotor --optim.lr 3e-4).
+(e.g. --gaze.prior visuomotor --optim.lr 3e-4). The presets train the reference VLA; `--policy.type NAME`
+trains another registered policy (with that policy's default config, then --policy.FIELD overrides).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from pathlib import Path
 from typing import Literal
 
 from gazereg.losses import Divergence
+from gazereg.policies import POLICY_CHOICE, PolicyConfig
 from gazereg.policies.vla.configuration_vla import VLAConfig
 from gazereg.policies.vla.configuration_vla import paper as paper_policy
 
@@ -77,8 +79,9 @@ class TrainConfig:
     steps: int = 1500
     batch_size: int = 64
     """global batch (split across processes)"""
-    policy_type: str = "vla"
-    policy: VLAConfig = field(default_factory=VLAConfig)
+    policy: PolicyConfig = field(default_factory=VLAConfig, metadata=POLICY_CHOICE.metadata())
+    """the policy's config: the reference VLA unless `--policy.type NAME` picks another registered policy
+    (gazereg.policies), whose fields then take overrides (--policy.FIELD value)"""
     data: DataConfig = field(default_factory=DataConfig)
     gaze: GazeConfig = field(default_factory=GazeConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)

@@ -3,6 +3,7 @@
     gazereg train --preset quick --data.store data/demos --run-dir runs/base
     gazereg train --preset quick --data.store data/demos --run-dir runs/gaze --gaze.prior visuomotor
     gazereg train ... --resume                                   (continue from the newest checkpoint)
+    gazereg train ... --policy.type NAME --policy.FIELD value   (another registered policy: gazereg.policies)
     accelerate launch --multi_gpu --num_processes 2 -m gazereg.training.loop --preset smoke ...   (DDP; CPU: gloo)
 
 Loss per step:  L = L_action + w(step) * mean_{valid b} KL(gaze_b || attention_b)
@@ -18,48 +19,38 @@ order is a function of (seed, step), so `--resume` continues the exact trajector
 
 The run folder: config.json (resolved), metrics.jsonl (loss/action, loss/gaze_kl, gaze/weight, lr, timings;
 val/* and align/* at every eval), checkpoints/step_XXXXXX/ (see gazereg.training.checkpoint).
+
+The loop (`train`): `setup` (gazereg.training.setup: accelerator, data, policy, optimiser, resume), then per
+step `step` (one optimisation step), every `log_every` steps a record of the interval's means, every
+`eval_every` steps `evaluate` (fixed-batch validation and callbacks), every `save_every` steps `checkpoint`.
+The policy is used only through the Policy interface (gazereg.policies.base).
 """
 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import json
 import logging
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import torch
 from torch import Tensor, nn
+from tqdm import tqdm
 
 from gazereg.attention.probe import AttentionProbe
-from gazereg.data.dataset import (
-    EpisodeDataset,
-    StepBatchSampler,
-    collate_batch,
-    describe_store,
-    select_episodes,
-    split_episodes,
-)
-from gazereg.data.store import EpisodeStore
-from gazereg.losses import WeightSchedule, gaze_loss
+from gazereg.losses import gaze_loss
 from gazereg.metrics import alignment_metrics
-from gazereg.policies import make_policy
-from gazereg.policies.vla.processor_vla import Tokenizer
-from gazereg.runtime.config import save_config, to_dict
-from gazereg.runtime.seeding import seed_everything
-from gazereg.training.checkpoint import latest_checkpoint, load_checkpoint, prune_checkpoints, save_checkpoint
-from gazereg.training.config import (  # re-exported: gazereg.training.loop is where callers import them from
-    PRESETS,
-    TrainConfig,
-)
-from gazereg.training.ema import EMA
-from gazereg.training.logger import MetricsFile, make_logger
-from gazereg.training.schedule import lr_lambda, param_groups, step_generator
+from gazereg.policies import Policy
+from gazereg.runtime.config import parse, to_dict
+from gazereg.training.checkpoint import prune_checkpoints, save_checkpoint
+from gazereg.training.config import PRESETS, TrainConfig
+from gazereg.training.schedule import step_generator
+from gazereg.training.setup import Run, setup
 
 log = logging.getLogger(__name__)
 
@@ -67,71 +58,59 @@ Callback = Callable[[int, nn.Module], "dict[str, Any] | None"]
 
 
 @dataclass
-class Built:
-    """Everything `build` makes from a config (before Accelerate wraps anything)."""
+class StepOutput:
+    """What one optimisation step reports."""
 
-    policy: nn.Module
-    config: TrainConfig
-    train_set: EpisodeDataset
-    val_set: EpisodeDataset | None
-    gaze_camera: str | None
+    terms: dict[str, float]
+    """loss, loss/action, grad_norm and (with gaze) loss/gaze_kl, gaze/*: averaged over a logging interval"""
+    lr: float
+    """the learning rate this update used"""
+    gaze_weight: float
+    """the gaze weight this update used (0 without the gaze term)"""
 
 
-def build(cfg: TrainConfig) -> Built:
-    """Data set, tokenizer, resolved policy config, policy (seeded) with normalisation stats, gaze targets."""
-    seed_everything(cfg.seed)
-    store = EpisodeStore(cfg.data.store)
-    episodes = select_episodes(store, cfg.data.tasks, cfg.data.max_episodes)
-    train_eps, val_eps = split_episodes(store, episodes, cfg.data.val_fraction, cfg.seed)
-    info = describe_store(store, episodes, cfg.policy.cameras)
-    tok = Tokenizer.build(info.instructions, cfg.policy.tokenizer, cfg.policy.max_text_len)
-    pcfg = cfg.policy.resolve(
-        cameras=info.cameras,
-        camera_hw=info.camera_hw,
-        state_dim=info.state_dim,
-        action_dim=info.action_dim,
-        vocab_size=tok.vocab_size,
+def step(run: Run, step: int, batch: dict[str, Tensor]) -> StepOutput:
+    """One optimisation step on `batch` (every random draw from the (seed, step, rank) generator)."""
+    cfg, acc = run.cfg, run.acc
+    batch = {k: v.to(acc.device, non_blocking=True) for k, v in batch.items()}
+    gen = step_generator(cfg.seed, step, acc.process_index, acc.device)
+    gaze_on = run.gaze_spec is not None
+    w = run.gaze_weight(step) if gaze_on else 0.0
+    probe_ctx: Any = (
+        AttentionProbe(run.model, run.gaze_spec, adapter="tap") if gaze_on else contextlib.nullcontext()
     )
-    policy = make_policy(cfg.policy_type, pcfg, tokenizer=tok)
-    gaze_camera = None
-    geometry = None
-    if cfg.gaze.prior is not None:
-        gaze_camera = cfg.gaze.camera or store.prior_info(cfg.gaze.prior).get("camera")
-        if gaze_camera is None:
-            raise ValueError(f"prior {cfg.gaze.prior!r} records no camera; set --gaze.camera")
-        geometry = policy.geometry(gaze_camera)
-        policy.resolve_layers(cfg.gaze.layers)  # fail early on bad layer ids
-
-    def dataset(eps: list[int]) -> EpisodeDataset:
-        return EpisodeDataset(
-            store,
-            eps,
-            pcfg.cameras,
-            pcfg.chunk,
-            tok,
-            gaze_prior=cfg.gaze.prior,
-            gaze_camera=gaze_camera,
-            geometry=geometry,
-            gaze_eps=cfg.gaze.patch_eps,
-            in_memory=cfg.data.in_memory,
+    with probe_ctx as probe, run.autocast():
+        loss, _ = run.model(batch, generator=gen, shift=cfg.shift)
+    terms = {"loss/action": float(loss.detach())}
+    if probe is not None:
+        kl, ginfo = gaze_loss(
+            batch["gaze"], probe.distribution(), batch["gaze_valid"], cfg.gaze.divergence, cfg.gaze.loss_eps
         )
-
-    train_set = dataset(train_eps)
-    val_set = dataset(val_eps) if val_eps else None
-    policy.normalizer.set_stats(**train_set.stats())
-    return Built(policy, dataclasses.replace(cfg, policy=pcfg), train_set, val_set, gaze_camera)
-
-
-def fixed_batch(ds: EpisodeDataset, n: int) -> dict[str, Tensor]:
-    """n evenly spaced samples (the same at every evaluation)."""
-    n = min(n, len(ds))
-    idx = torch.linspace(0, len(ds) - 1, n).round().long().tolist()
-    return ds.__getitems__(idx)
+        if w > 0:  # weight 0 logs the KL but leaves the graph (and so the update) exactly the baseline's
+            loss = loss + w * kl
+        terms.update(
+            {"loss/gaze_kl": float(kl.detach()), "gaze/patch_mass": float(probe.patch_mass().mean()), **ginfo}
+        )
+    if not torch.isfinite(loss):
+        raise FloatingPointError(f"non-finite loss at step {step}: {terms}")
+    run.opt.zero_grad(set_to_none=True)
+    acc.backward(loss)
+    clip = cfg.optim.grad_clip
+    grad_norm = acc.clip_grad_norm_(run.model.parameters(), clip) if clip > 0 else None
+    run.opt.step()
+    lr = run.sched.get_last_lr()[0]
+    run.sched.step()
+    if run.ema is not None:
+        run.ema.update(run.policy)
+    terms["loss"] = float(loss.detach())
+    if grad_norm is not None:
+        terms["grad_norm"] = float(grad_norm)
+    return StepOutput(terms, lr, w)
 
 
 @torch.no_grad()
 def evaluate_batch(
-    policy: nn.Module, batch: dict[str, Tensor], cfg: TrainConfig, gaze_camera: str | None, prefix: str
+    policy: Policy, batch: dict[str, Tensor], cfg: TrainConfig, gaze_camera: str | None, prefix: str
 ) -> dict[str, float]:
     """Action loss and, with a prior, the attention-gaze alignment on one fixed batch (no RNG consumed)."""
     was_training = policy.training
@@ -154,255 +133,167 @@ def evaluate_batch(
             kl, _ = gaze_loss(gaze, attn, valid, cfg.gaze.divergence, cfg.gaze.loss_eps)
             out[f"{prefix}/gaze_kl"] = float(kl)
             out[f"{prefix}/patch_mass"] = float(probe.patch_mass().mean())
-            out.update(
-                {
-                    f"align_{prefix}/{k}": v
-                    for k, v in alignment_metrics(gaze.cpu(), attn.cpu(), valid.cpu()).items()
-                }
-            )
+            aligned = alignment_metrics(gaze.cpu(), attn.cpu(), valid.cpu())
+            out.update({f"align_{prefix}/{k}": v for k, v in aligned.items()})
     finally:
         policy.train(was_training)
     return out
 
 
+def evaluate(run: Run, step: int, callbacks: Sequence[Callback]) -> dict[str, Any]:
+    """On the main process: the fixed-batch validation terms, then every callback's dict (callbacks get the
+    evaluation policy in eval mode with its episode state reset). Every process waits for it."""
+    out: dict[str, Any] = {}
+    if run.main:
+        for name, batch in run.eval_batches.items():
+            out.update(evaluate_batch(run.eval_policy(), batch, run.cfg, run.built.gaze_camera, name))
+        for cb in callbacks:
+            policy = run.eval_policy()
+            policy.eval()
+            policy.reset()
+            out.update(cb(step, policy) or {})
+            policy.reset()
+            run.policy.train()
+    run.acc.wait_for_everyone()
+    return out
+
+
+def checkpoint(run: Run, step: int) -> Path | None:
+    """Save checkpoints/step_XXXXXX on the main process (and prune old ones); returns its path there."""
+    path = None
+    if run.main:
+        ema = run.ema
+        state = {
+            "steps": run.cfg.steps,
+            "epoch": run.sampler.epoch_of(step),
+            "config": to_dict(run.cfg),
+            "ema_updates": ema.updates if ema is not None else 0,
+        }
+        path = save_checkpoint(
+            run.run_dir,
+            step,
+            run.policy,
+            run.opt,
+            run.sched,
+            state,
+            ema.state_dict() if ema is not None else None,
+        )
+        prune_checkpoints(run.run_dir, run.cfg.keep_checkpoints)
+    run.acc.wait_for_everyone()
+    return path
+
+
+@dataclass
+class Interval:
+    """The logged terms and times summed since the last record."""
+
+    sums: dict[str, float] = field(default_factory=dict)
+    n: int = 0
+    t_data: float = 0.0
+    t_step: float = 0.0
+
+    def add(self, terms: dict[str, float]) -> None:
+        for k, v in terms.items():
+            self.sums[k] = self.sums.get(k, 0.0) + v
+        self.n += 1
+
+    def means(self, run: Run) -> dict[str, float]:
+        """Interval means of the terms (averaged over processes too) and the mean times per step."""
+        if not self.n:
+            return {}
+        keys = sorted(self.sums)
+        means = [self.sums[k] / self.n for k in keys]
+        if run.acc.num_processes > 1:
+            device = run.acc.device
+            means = run.acc.reduce(torch.tensor(means, dtype=torch.float64, device=device), "mean").tolist()
+        return {
+            **dict(zip(keys, means)),
+            "time/step_s": self.t_step / self.n,
+            "time/data_s": self.t_data / self.n,
+            "throughput/samples_per_s": run.cfg.batch_size * self.n / max(self.t_step + self.t_data, 1e-9),
+        }
+
+
+def log_record(run: Run, done: int, last: StepOutput, interval: Interval) -> dict[str, Any]:
+    """The metrics record after `done` steps: epoch, LR, gaze weight and the interval's means."""
+    record: dict[str, Any] = {"step": done, "epoch": round(run.sampler.epoch_of(done), 4), "lr": last.lr}
+    if run.gaze_spec is not None:
+        record["gaze/weight"] = last.gaze_weight  # the current weight (not an interval mean)
+    return {**record, **interval.means(run)}
+
+
+def log_start(run: Run) -> None:
+    gaze = f"{run.cfg.gaze.prior} on {run.built.gaze_camera}" if run.gaze_spec is not None else "off"
+    log.info(
+        "policy %s: %d parameters; %d training samples; %d process(es) on %s; gaze %s",
+        run.policy.name,
+        run.policy.num_parameters(),
+        len(run.built.train_set),
+        run.acc.num_processes,
+        run.acc.device,
+        gaze,
+    )
+
+
 # ----- the loop -------------------------------------------------------------------------------------------
 def train(cfg: TrainConfig, callbacks: Sequence[Callback] = ()) -> dict[str, Any]:
-    """Train; returns {'run_dir', 'step', 'checkpoint', 'metrics' (the last record)}.
+    """Train; returns {'run_dir', 'step', 'checkpoint', 'metrics' (the last record), 'main'}.
 
     callbacks: called every `eval_every` steps and at the end on the main process as cb(step, policy) with the
     evaluation policy (EMA weights if enabled) in eval mode; a returned dict is merged into the metrics."""
-    from accelerate import Accelerator
-    from tqdm import tqdm
-
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
-    use_cpu = cfg.device == "cpu" or (cfg.device == "auto" and not torch.cuda.is_available())
-    acc = Accelerator(cpu=use_cpu, mixed_precision=cfg.mixed_precision)
-    rank, world, main = acc.process_index, acc.num_processes, acc.is_main_process
-    if cfg.batch_size % world:
-        raise ValueError(
-            f"batch_size {cfg.batch_size} must be divisible by the number of processes ({world})"
-        )
-    run_dir = Path(cfg.run_dir)
-    ckpt = latest_checkpoint(run_dir) if cfg.resume else None
-    if cfg.resume and ckpt is None:
-        log.warning("--resume: no checkpoint in %s, starting from scratch", run_dir)
-    if not cfg.resume and latest_checkpoint(run_dir) is not None:
-        raise FileExistsError(
-            f"{run_dir} already holds checkpoints; pass --resume to continue it or choose another --run-dir"
-        )
-
-    built = build(cfg)
-    cfg, policy = built.config, built.policy
-    policy.to(acc.device)
-    total = cfg.steps
-    stop = min(total, cfg.stop_at) if cfg.stop_at is not None else total
-    opt = torch.optim.AdamW(
-        param_groups(policy, cfg.optim.weight_decay), lr=cfg.optim.lr, betas=cfg.optim.betas
-    )
-    sched = torch.optim.lr_scheduler.LambdaLR(
-        opt, lambda s: lr_lambda(s, total, cfg.optim.warmup_steps, cfg.optim.min_lr_frac)
-    )
-    ema = EMA(policy, cfg.optim.ema_decay) if cfg.optim.ema_decay > 0 else None
-    start = 0
-    metrics = MetricsFile(run_dir / "metrics.jsonl")
-    if ckpt is not None:
-        state = load_checkpoint(ckpt, policy, opt, sched)
-        start = int(state["step"])
-        if ema is not None:
-            if "ema_state_dict" not in state:
-                raise ValueError(f"{ckpt} has no EMA weights but optim.ema_decay > 0")
-            ema.load_state_dict(state["ema_state_dict"], int(state.get("ema_updates", start)))
-        if state.get("steps") != total:
-            log.warning(
-                "resuming a run planned for %s steps with steps=%d: the LR schedule changes",
-                state.get("steps"),
-                total,
-            )
-        if main:
-            metrics.truncate_after(start)
-            log.info("resumed from %s (step %d)", ckpt, start)
-    if main:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        save_config(cfg, run_dir / "config.json")
-    acc.wait_for_everyone()
-
-    model, opt = acc.prepare(policy, opt)
-    sampler = StepBatchSampler(len(built.train_set), cfg.batch_size, cfg.seed, stop, start, rank, world)
-    loader = torch.utils.data.DataLoader(
-        built.train_set,
-        batch_sampler=sampler,
-        num_workers=cfg.data.num_workers,
-        collate_fn=collate_batch,
-        pin_memory=acc.device.type == "cuda",
-        persistent_workers=False,
-    )
-    gaze_on = cfg.gaze.prior is not None and cfg.gaze.enabled
-    schedule = WeightSchedule(
-        cfg.gaze.weight, cfg.gaze.schedule, cfg.gaze.warmup_steps, total, cfg.gaze.final_frac
-    )
-    spec = policy.gaze_probe_spec(built.gaze_camera, cfg.gaze.layers) if gaze_on else None
-    eval_sets = {"val": built.val_set} if built.val_set is not None else {"train": built.train_set}
-    eval_batches = {k: fixed_batch(ds, cfg.eval_batch_size) for k, ds in eval_sets.items()}
-    logger = (
-        make_logger(cfg.logger, run_dir, to_dict(cfg), cfg.wandb_project)
-        if main
-        else make_logger("none", run_dir, {})
-    )
-    bar = tqdm(
-        total=stop, initial=start, desc="train", disable=not (main and cfg.progress), dynamic_ncols=True
-    )
-    autocast = acc.autocast if cfg.mixed_precision != "no" else contextlib.nullcontext
-    if main:
-        log.info(
-            "policy %s: %d parameters; %d training samples; %d process(es) on %s; gaze %s",
-            cfg.policy_type,
-            policy.num_parameters(),
-            len(built.train_set),
-            world,
-            acc.device,
-            f"{cfg.gaze.prior} on {built.gaze_camera}" if gaze_on else "off",
-        )
-
-    def eval_policy() -> nn.Module:
-        return ema.model if ema is not None else policy
-
-    def checkpoint(step: int) -> Path | None:
-        path = None
-        if main:
-            state = {
-                "steps": total,
-                "epoch": sampler.epoch_of(step),
-                "config": to_dict(cfg),
-                "ema_updates": ema.updates if ema is not None else 0,
-            }
-            path = save_checkpoint(
-                run_dir, step, policy, opt, sched, state, ema.state_dict() if ema is not None else None
-            )
-            prune_checkpoints(run_dir, cfg.keep_checkpoints)
-        acc.wait_for_everyone()
-        return path
-
-    acc_sums: dict[str, float] = {}
-    n_acc, t_data, t_step = 0, 0.0, 0.0
-    record: dict[str, Any] = {}
-    last_ckpt: Path | None = None
+    run = setup(cfg)
+    cfg = run.cfg
+    show = run.main and cfg.progress
+    bar = tqdm(total=run.stop, initial=run.start, desc="train", disable=not show, dynamic_ncols=True)
+    if run.main:
+        log_start(run)
+    interval, record, last_ckpt = Interval(), {}, None
     t_prev = time.perf_counter()
-    model.train()
-    for step, batch in zip(range(start, stop), loader):
+    run.model.train()
+    for i, batch in zip(range(run.start, run.stop), run.loader):
         t0 = time.perf_counter()
-        t_data += t0 - t_prev
-        batch = {k: v.to(acc.device, non_blocking=True) for k, v in batch.items()}
-        gen = step_generator(cfg.seed, step, rank, acc.device)
-        w = schedule(step) if gaze_on else 0.0
-        probe_ctx: Any = AttentionProbe(model, spec, adapter="tap") if gaze_on else contextlib.nullcontext()
-        with probe_ctx as probe, autocast():
-            loss, info = model(batch, generator=gen, shift=cfg.shift)
-        terms = {"loss/action": float(loss.detach())}
-        if probe is not None:
-            kl, ginfo = gaze_loss(
-                batch["gaze"],
-                probe.distribution(),
-                batch["gaze_valid"],
-                cfg.gaze.divergence,
-                cfg.gaze.loss_eps,
-            )
-            if w > 0:  # weight 0 logs the KL but leaves the graph (and so the update) exactly the baseline's
-                loss = loss + w * kl
-            terms.update(
-                {
-                    "loss/gaze_kl": float(kl.detach()),
-                    "gaze/patch_mass": float(probe.patch_mass().mean()),
-                    **ginfo,
-                }
-            )
-        if not torch.isfinite(loss):
-            raise FloatingPointError(f"non-finite loss at step {step}: {terms}")
-        opt.zero_grad(set_to_none=True)
-        acc.backward(loss)
-        grad_norm = (
-            acc.clip_grad_norm_(model.parameters(), cfg.optim.grad_clip) if cfg.optim.grad_clip > 0 else None
-        )
-        opt.step()
-        cur_lr = sched.get_last_lr()[0]  # the LR this update used
-        sched.step()
-        if ema is not None:
-            ema.update(policy)
-        terms["loss"] = float(loss.detach())
-        if grad_norm is not None:
-            terms["grad_norm"] = float(grad_norm)
-        for k, v in terms.items():
-            acc_sums[k] = acc_sums.get(k, 0.0) + v
-        n_acc += 1
+        interval.t_data += t0 - t_prev
+        out = step(run, i, batch)
+        interval.add(out.terms)
         t_prev = time.perf_counter()
-        t_step += t_prev - t0
-        done = step + 1
+        interval.t_step += t_prev - t0
+        done = i + 1
         bar.update(1)
-
-        is_log = done % cfg.log_every == 0 or done == stop
-        is_eval = done % cfg.eval_every == 0 or done == stop
+        is_log = done % cfg.log_every == 0 or done == run.stop
+        is_eval = done % cfg.eval_every == 0 or done == run.stop
         if is_log or is_eval:
-            record = {"step": done, "epoch": round(sampler.epoch_of(done), 4), "lr": cur_lr}
-            if gaze_on:
-                record["gaze/weight"] = w  # the current weight (not an interval mean)
-            if n_acc:
-                means = [acc_sums[k] / n_acc for k in sorted(acc_sums)]
-                if world > 1:  # average the interval means over processes
-                    means = acc.reduce(
-                        torch.tensor(means, dtype=torch.float64, device=acc.device), "mean"
-                    ).tolist()
-                record.update(dict(zip(sorted(acc_sums), means)))
-                record.update(
-                    {
-                        "time/step_s": t_step / n_acc,
-                        "time/data_s": t_data / n_acc,
-                        "throughput/samples_per_s": cfg.batch_size * n_acc / max(t_step + t_data, 1e-9),
-                    }
-                )
-            acc_sums, n_acc, t_data, t_step = {}, 0, 0.0, 0.0
+            record, interval = log_record(run, done, out, interval), Interval()
         if is_eval:
-            if main:
-                for name, eb in eval_batches.items():
-                    record.update(evaluate_batch(eval_policy(), eb, cfg, built.gaze_camera, name))
-                for cb in callbacks:
-                    ep = eval_policy()
-                    ep.eval()
-                    ep.reset()
-                    record.update(cb(done, ep) or {})
-                    ep.reset()
-                    policy.train()
-            acc.wait_for_everyone()
-        if (is_log or is_eval) and main:
-            metrics.write(record)
-            logger.log(record, done)
-            bar.set_postfix(
-                {
-                    k.split("/")[-1]: f"{record[k]:.4f}"
-                    for k in ("loss/action", "loss/gaze_kl", "val/gaze_kl")
-                    if k in record
-                }
-            )
-        if done % cfg.save_every == 0 or done == stop:
-            last_ckpt = checkpoint(done)
+            record.update(evaluate(run, done, callbacks))
+        if (is_log or is_eval) and run.main:
+            run.metrics.write(record)
+            run.logger.log(record, done)
+            shown = ("loss/action", "loss/gaze_kl", "val/gaze_kl")
+            bar.set_postfix({k.split("/")[-1]: f"{record[k]:.4f}" for k in shown if k in record})
+        if done % cfg.save_every == 0 or done == run.stop:
+            last_ckpt = checkpoint(run, done)
         t_prev = time.perf_counter()
     bar.close()
-    logger.close()
-    acc.wait_for_everyone()
-    acc.end_training()
-    if last_ckpt is None and ckpt is not None and start >= stop:
-        last_ckpt = ckpt  # nothing left to train: the resumed checkpoint is the result
+    return finish(run, record, last_ckpt)
+
+
+def finish(run: Run, record: dict[str, Any], last_ckpt: Path | None) -> dict[str, Any]:
+    """Close the logger and Accelerate; the result of `train`."""
+    run.logger.close()
+    run.acc.wait_for_everyone()
+    run.acc.end_training()
+    if last_ckpt is None and run.resumed_from is not None and run.start >= run.stop:
+        last_ckpt = run.resumed_from  # nothing left to train: the resumed checkpoint is the result
     return {
-        "run_dir": run_dir,
-        "step": max(stop, start),
+        "run_dir": run.run_dir,
+        "step": max(run.stop, run.start),
         "checkpoint": last_ckpt,
         "metrics": record,
-        "main": main,
+        "main": run.main,
     }
 
 
 def main(argv: list[str] | None = None) -> int:
-    from gazereg.runtime.config import parse
-
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     cfg = parse(
         PRESETS, sys.argv[1:] if argv is None else argv, prog="gazereg train", description=__doc__ or ""

@@ -42,8 +42,7 @@ def strip(cfg: StripConfig) -> Path:
     import numpy as np
 
     from gazereg.data.store import EpisodeStore
-    from gazereg.gaze.priors import parse_params
-    from gazereg.gaze.sources import make_gaze_source
+    from gazereg.gaze.sources import make_gaze_source, parse_source_params
     from gazereg.viz.strip import draw_strip
 
     store = EpisodeStore(cfg.store)
@@ -62,7 +61,7 @@ def strip(cfg: StripConfig) -> Path:
         heat, valid = store.read_prior(cfg.prior, cfg.episode)
         label = f"prior {cfg.prior}"
     else:
-        source = make_gaze_source(cfg.source, **parse_params(cfg.source_params))
+        source = make_gaze_source(parse_source_params(cfg.source, cfg.source_params))
         if hasattr(source, "bind"):
             source.bind(store)
         heat, valid = source(ep, camera, (cfg.heatmap_size, cfg.heatmap_size))

@@ -100,6 +100,38 @@ class VideoFile:
         except StopIteration:
             return None
 
+    def _match(self, times: np.ndarray) -> list[np.ndarray | None]:
+        """Decode forward from the current position, keeping the frame within tolerance of each requested
+        time (None where none is); the first frame past the last request stays pending for the next call."""
+        t0, t1, tol = float(times[0]), float(times[-1]), self.tolerance_s
+        out: list[np.ndarray | None] = [None] * times.size
+        j = 0  # first unmatched requested time
+        try:
+            while j < times.size:
+                frame = self._next()
+                if frame is None:
+                    break
+                if frame.time is None:
+                    raise DecodeError(f"video file {self.path}: a frame has no presentation time")
+                ft = self._last_time = float(frame.time)
+                if ft > t1 + tol:
+                    self._pending = frame
+                    break
+                # skip requests this frame (and every later one) is already past
+                while j < times.size and ft > times[j] + tol:
+                    j += 1
+                if j < times.size and abs(ft - times[j]) <= tol:
+                    arr = frame.to_ndarray(format="rgb24")
+                    while j < times.size and abs(ft - times[j]) <= tol:
+                        out[j] = arr
+                        j += 1
+        except DecodeError:
+            raise
+        except Exception as e:  # av.error.InvalidDataError and friends
+            self._frames = None
+            raise DecodeError(f"video file {self.path}: decoding failed near {t0:.4f}-{t1:.4f} s: {e}") from e
+        return out
+
     def read(self, times: np.ndarray, shape: tuple[int, int] | None = None) -> np.ndarray:
         """Frames at the given presentation times (seconds, ascending): uint8 (N, H, W, 3) RGB.
 
@@ -112,39 +144,11 @@ class VideoFile:
             raise DecodeError(f"video file {self.path}: requested timestamps are not strictly increasing")
         if self._container is None:
             raise DecodeError(f"video file {self.path} is closed")
-        t0, t1, tol = float(times[0]), float(times[-1]), self.tolerance_s
+        t0, tol = float(times[0]), self.tolerance_s
         head = self._pending.time if self._pending is not None else self._last_time
         if self._frames is None or head is None or head > t0 + tol or t0 - head > _SEEK_GAP_S:
             self._seek(t0)
-        out: list[np.ndarray | None] = [None] * times.size
-        j = 0  # first unmatched requested time
-        try:
-            while j < times.size:
-                frame = self._next()
-                if frame is None:
-                    break
-                ft = float(frame.time) if frame.time is not None else None
-                if ft is None:
-                    raise DecodeError(f"video file {self.path}: a frame has no presentation time")
-                self._last_time = ft
-                if ft > t1 + tol:
-                    self._pending = frame
-                    break
-                # skip requests this frame (and every later one) is already past
-                while j < times.size and ft > times[j] + tol:
-                    j += 1
-                if j < times.size and abs(ft - times[j]) <= tol:
-                    arr = frame.to_ndarray(format="rgb24")
-                    k = j
-                    while k < times.size and abs(ft - times[k]) <= tol:
-                        out[k] = arr
-                        k += 1
-                    j = k
-        except DecodeError:
-            raise
-        except Exception as e:  # av.error.InvalidDataError and friends
-            self._frames = None
-            raise DecodeError(f"video file {self.path}: decoding failed near {t0:.4f}-{t1:.4f} s: {e}") from e
+        out = self._match(times)
         missing = [i for i, f in enumerate(out) if f is None]
         if missing:
             self._frames = None  # force a fresh seek next time

@@ -60,61 +60,41 @@ is closed by `close()`, or at exit before EGL's own atexit handler runs (see `ga
 from __future__ import annotations
 
 import contextlib
-import io
-import string
-import tempfile
 import warnings
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
+from gazereg.envs.base import check_cameras, check_render_mode, image_hw
 from gazereg.envs.camera import CameraGeometry, camera_geometry
-from gazereg.envs.libero.render import build_libero_visual_model, sync_appearance
-from gazereg.envs.libero.scene import SceneFacts, TaskRoles
-from gazereg.envs.libero.setup import (  # noqa: F401  (re-exported)
+from gazereg.envs.libero.render import (
+    CAMERA_ALIASES,
+    COLLISION_GROUP,
+    camera_ids,
+    compile_render_copy,
+    sync_appearance,
+)
+from gazereg.envs.libero.scene import SceneFacts, TaskRoles, quat_xyzw_to_axis_angle
+from gazereg.envs.libero.setup import (
     SUITE_MAX_STEPS,
-    SUITES,
-    LiberoUnavailable,
-    assets_dir,
-    ensure_libero_config,
-    libero_available,
+    clear_transients,
+    import_libero,
+    init_states,
+    make_control_env,
     parse_task,
     resolve_task,
+    suite_benchmark,
 )
-from gazereg.envs.libero.setup import import_libero as _import_libero
-from gazereg.envs.libero.setup import init_states as _init_states
-from gazereg.envs.libero.setup import suite_benchmark as _suite
 from gazereg.envs.perturbations import LightState, Perturbation
-from gazereg.envs.render import FastRenderer, VisualMirror, default_mesh_cell, select_gl_backend
+from gazereg.envs.render import FastRenderer, VisualMirror, resolve_mesh_cell, select_gl_backend
+from gazereg.envs.spaces import env_spaces
 
 STATE_LAYOUT = ("eef_x", "eef_y", "eef_z", "eef_ax", "eef_ay", "eef_az", "gripper_l", "gripper_r")
 ACTION_LAYOUT = ("dx", "dy", "dz", "drx", "dry", "drz", "grip")
-# Other names of LIBERO's two cameras: short ones, and the HDF5 observation keys `gazereg import hdf5` names the
-# cameras of LIBERO's (agentview_rgb, eye_in_hand_rgb) and robomimic's (*_image) files after.
-CAMERA_ALIASES = {
-    "wrist": "robot0_eye_in_hand",
-    "eye_in_hand": "robot0_eye_in_hand",
-    "eye_in_hand_rgb": "robot0_eye_in_hand",
-    "robot0_eye_in_hand_image": "robot0_eye_in_hand",
-    "agentview_rgb": "agentview",
-    "agentview_image": "agentview",
-}
 NOOP_ACTION = np.array([0, 0, 0, 0, 0, 0, -1], dtype=np.float64)
 CONTROL_FREQ = 20
-COLLISION_GROUP = 0  # robosuite's geom group of collision geoms (visual geoms are group 1)
-
-
-def quat_xyzw_to_axis_angle(q: np.ndarray) -> np.ndarray:
-    """Unit quaternion (x, y, z, w) -> axis-angle vector (3,), as robosuite's `quat2axisangle`."""
-    q = np.asarray(q, dtype=np.float64)
-    w = min(1.0, max(-1.0, float(q[3])))
-    den = np.sqrt(1.0 - w * w)
-    if den < 1e-8:
-        return np.zeros(3)
-    return q[:3] * 2.0 * np.arccos(w) / den
 
 
 class LiberoEnv(gym.Env):
@@ -139,28 +119,23 @@ class LiberoEnv(gym.Env):
         render_mode: str | None = "rgb_array",
     ):
         suite, which = parse_task(task)
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be 'rgb_array' or None, got {render_mode!r}")
-        H, W = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
-        if H <= 0 or W <= 0:
-            raise ValueError(f"image size must be positive, got {image_size}")
+        check_render_mode(render_mode)
+        H, W = image_hw(image_size)
         max_steps = SUITE_MAX_STEPS[suite] if max_steps is None else int(max_steps)
         if max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {max_steps}")
-        self.cameras = tuple(cameras)
-        if len(set(self.cameras)) != len(self.cameras):
-            raise ValueError(f"duplicate cameras in {self.cameras}")
+        self.cameras = check_cameras(cameras)
         self.gl_backend = (gl_backend or select_gl_backend()) if self.cameras else None
-        _import_libero(self.gl_backend)
+        import_libero(self.gl_backend)
         import mujoco
 
         self._mj = mujoco
         self.task = task
         self.suite = suite
         _, which = resolve_task(task)
-        self.task_names = list(_suite(suite).get_task_names())
+        self.task_names = list(suite_benchmark(suite).get_task_names())
         self._fixed_task = which
-        self.image_size = (int(H), int(W))
+        self.image_size = (H, W)
         self.max_steps = max_steps
         self.terminate_on_success = bool(terminate_on_success)
         self.noise_seed = int(noise_seed)
@@ -168,34 +143,31 @@ class LiberoEnv(gym.Env):
         self.render_mode = render_mode
         self._instruction_override = instruction
         self._perturbation = perturbation or Perturbation()
+        self.mesh_cell = mesh_cell
+        self._init_fields(int(seed))
+        self.observation_space, self.action_space = env_spaces(
+            self.cameras, H, W, len(STATE_LAYOUT), len(ACTION_LAYOUT)
+        )
+        self.fps = float(CONTROL_FREQ)
+        self.metadata = {**self.metadata, "render_fps": self.fps}
+        self._build(self.setup_of(self._setup_seed)[0])
+
+    def _init_fields(self, seed: int) -> None:
+        """The state before any task is built: setup `seed` comes next."""
         self._env: Any = None
         self._facts: SceneFacts | None = None
         self._task_index: int | None = None
         self._renderer: FastRenderer | None = None
         self._mirror: VisualMirror | None = None
-        self.mesh_cell = mesh_cell
         self._geometry: dict[str, CameraGeometry] = {}
         self._cam_ids: dict[str, int] = {}
-        self._setup_seed = int(seed)
-        self._next_seed = int(seed)
+        self._setup_seed = seed
+        self._next_seed = seed
         self._init_index = 0
         self._steps = 0
         self._last_obs: dict[str, Any] | None = None
         self._rs_obs: dict[str, Any] = {}
         self._noise_rng = np.random.default_rng([self.noise_seed, self._setup_seed])
-
-        image_spaces = {c: gym.spaces.Box(0, 255, (H, W, 3), dtype=np.uint8) for c in self.cameras}
-        self.observation_space = gym.spaces.Dict(
-            {
-                "images": gym.spaces.Dict(image_spaces),
-                "state": gym.spaces.Box(-np.inf, np.inf, (len(STATE_LAYOUT),), dtype=np.float32),
-                "instruction": gym.spaces.Text(max_length=512, charset=string.printable),
-            }
-        )
-        self.action_space = gym.spaces.Box(-1.0, 1.0, (len(ACTION_LAYOUT),), dtype=np.float32)
-        self.fps = float(CONTROL_FREQ)
-        self.metadata = {**self.metadata, "render_fps": self.fps}
-        self._build(self.setup_of(self._setup_seed)[0])
 
     # ----- setups -----------------------------------------------------------------------------------------
     def setup_of(self, seed: int) -> tuple[int, int]:
@@ -206,64 +178,38 @@ class LiberoEnv(gym.Env):
             t, k = self._fixed_task, seed
         else:
             t, k = seed % len(self.task_names), seed // len(self.task_names)
-        return t, k % len(_init_states(self.suite, t))
+        return t, k % len(init_states(self.suite, t))
 
     def _build(self, index: int) -> None:
         if self._task_index == index and self._env is not None:
             return
         self._close_env()
-        from libero.libero.envs.env_wrapper import ControlEnv
-
-        bddl = _suite(self.suite).get_task_bddl_file_path(index)
-        with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):
-            warnings.simplefilter("ignore")
-            self._env = ControlEnv(
-                bddl_file_name=bddl,
-                use_camera_obs=False,
-                has_renderer=False,
-                has_offscreen_renderer=False,
-                ignore_done=True,
-                hard_reset=False,  # keep one MjModel per task: the renderer's GL context is tied to it
-                horizon=10**6,
-                control_freq=CONTROL_FREQ,
-            )
+        bddl = suite_benchmark(self.suite).get_task_bddl_file_path(index)
+        self._env = make_control_env(bddl, CONTROL_FREQ)
         self._task_index = index
         self._facts = SceneFacts(self._env.env)
         self._geometry = {}
         # The benchmark's task language (from the BDDL file name), as OpenVLA's and LeRobot's LIBERO data use;
         # the BDDL's own `(:language ...)` line sometimes differs ("Pick the akita black bowl ...").
-        self.instruction = self._instruction_override or str(_suite(self.suite).get_task(index).language)
-        m = self.physics_model
+        self.instruction = self._instruction_override or str(
+            suite_benchmark(self.suite).get_task(index).language
+        )
         if self.cameras:
-            H, W = self.image_size
-            visual = self._visual_model(m)
-            self._mirror = None if visual is m else VisualMirror(m, visual)
-            self._base_lights = LightState.capture(visual)
-            self._renderer = FastRenderer(visual, H, W, backend=self.gl_backend)
-            # robosuite's cameras (and so LIBERO's data) show the visual geoms only: hide the collision group.
-            self._renderer.option.geomgroup[COLLISION_GROUP] = 0
-            self._cam_ids = {}
-            for cam in self.cameras:
-                name = CAMERA_ALIASES.get(cam, cam)
-                cid = self._mj.mj_name2id(m, self._mj.mjtObj.mjOBJ_CAMERA, name)
-                if cid < 0:
-                    names = [m.camera(i).name for i in range(m.ncam)]
-                    raise KeyError(f"no camera {cam!r} in LIBERO's model; cameras: {names}")
-                self._cam_ids[cam] = cid
+            self._start_rendering(self.physics_model)
 
-    def _visual_model(self, physics_model: Any) -> Any:
-        """The model to render: a copy with simplified meshes (`mesh_cell`), or the physics model itself."""
+    def _start_rendering(self, m: Any) -> None:
+        """The renderer of the current task's cameras, from a render copy with simplified meshes (`mesh_cell`)
+        or from the physics model `m` itself."""
         H, W = self.image_size
-        cell = default_mesh_cell(H, W) if self.mesh_cell == "auto" else self.mesh_cell
-        if cell is None:
-            return physics_model
-        if isinstance(cell, str):
-            raise ValueError(f"mesh_cell must be 'auto', a size in metres or None, got {self.mesh_cell!r}")
+        cell = resolve_mesh_cell(self.mesh_cell, H, W)
         # robosuite compiled the physics model from this XML (absolute asset paths): compile it again.
-        with tempfile.TemporaryDirectory() as tmp:
-            path = Path(tmp) / "libero_task.xml"
-            path.write_text(self._env.env.model.get_xml())
-            return build_libero_visual_model(path, physics_model, mesh_cell=float(cell))
+        visual = m if cell is None else compile_render_copy(self._env.env.model.get_xml(), m, cell)
+        self._mirror = None if visual is m else VisualMirror(m, visual)
+        self._base_lights = LightState.capture(visual)
+        self._renderer = FastRenderer(visual, H, W, backend=self.gl_backend)
+        # robosuite's cameras (and so LIBERO's data) show the visual geoms only: hide the collision group.
+        self._renderer.option.geomgroup[COLLISION_GROUP] = 0
+        self._cam_ids = camera_ids(m, self.cameras)
 
     def _close_env(self) -> None:
         if self._renderer is not None:
@@ -320,8 +266,8 @@ class LiberoEnv(gym.Env):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             self._env.reset()
-            self._clear_transients()
-            self._rs_obs = self._env.set_init_state(_init_states(self.suite, t)[k])
+            clear_transients(self._env, self.physics_data)
+            self._rs_obs = self._env.set_init_state(init_states(self.suite, t)[k])
             for _ in range(self.settle_steps):
                 self._rs_obs, _, _, _ = self._env.step(NOOP_ACTION)
         self._steps = 0
@@ -333,21 +279,6 @@ class LiberoEnv(gym.Env):
             self._perturbation.lighting.apply(self._renderer.model, self._base_lights)
         obs = self._observation()
         return obs, self._info(bool(self._env.check_success()))
-
-    def _clear_transients(self) -> None:
-        """What hard_reset=False would carry over from the last episode besides qpos/qvel (which the initial state
-        sets): the grippers' accumulated command, actuator controls and the solver's warm start. Without
-        this, two resets to the same setup differ by millimetres after a few steps."""
-        for robot in self._env.robots:
-            g = getattr(robot, "gripper", None)
-            if g is not None and hasattr(g, "current_action"):
-                g.current_action = np.zeros_like(g.current_action)
-            ctrl = getattr(robot, "controller", None)
-            if ctrl is not None and hasattr(ctrl, "reset_goal"):
-                ctrl.reset_goal()
-        d = self.physics_data
-        for name in ("ctrl", "act", "qacc_warmstart", "qfrc_applied", "xfrc_applied"):
-            getattr(d, name)[:] = 0
 
     def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
         a = np.asarray(action, dtype=np.float64).reshape(-1)
@@ -404,9 +335,7 @@ class LiberoEnv(gym.Env):
         if self._mirror is not None:
             return self._mirror.sync_data(self.physics_data)
         d = self.physics_data
-        self._mj.mj_camlight(
-            self.physics_model, d
-        )  # robosuite steps leave cam/light poses of the last substep
+        self._mj.mj_camlight(self.physics_model, d)  # robosuite's steps leave those of the last substep
         return d
 
     def _info(self, success: bool) -> dict[str, Any]:

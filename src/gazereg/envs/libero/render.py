@@ -17,6 +17,8 @@ setting their alpha); `sync_appearance` copies those into the copy.
 
 from __future__ import annotations
 
+import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +28,17 @@ from gazereg.envs.render import cluster_vertices, drop_unused, large_meshes, non
 
 # Model fields robosuite/LIBERO set on the compiled model after compiling (appearance only).
 APPEARANCE_FIELDS = ("site_rgba", "site_size", "geom_rgba", "mat_rgba")
+# Other names of LIBERO's two cameras: short ones, and the HDF5 observation keys `gazereg import hdf5` names the
+# cameras of LIBERO's (agentview_rgb, eye_in_hand_rgb) and robomimic's (*_image) files after.
+CAMERA_ALIASES = {
+    "wrist": "robot0_eye_in_hand",
+    "eye_in_hand": "robot0_eye_in_hand",
+    "eye_in_hand_rgb": "robot0_eye_in_hand",
+    "robot0_eye_in_hand_image": "robot0_eye_in_hand",
+    "agentview_rgb": "agentview",
+    "agentview_image": "agentview",
+}
+COLLISION_GROUP = 0  # robosuite's geom group of collision geoms (visual geoms are group 1)
 
 
 def decimate_with_texcoords(
@@ -90,3 +103,26 @@ def sync_appearance(physics_model: Any, visual_model: Any) -> None:
     """Copy the appearance fields robosuite changes at runtime (APPEARANCE_FIELDS) into the render copy."""
     for name in APPEARANCE_FIELDS:
         getattr(visual_model, name)[:] = getattr(physics_model, name)
+
+
+def compile_render_copy(xml: str, physics_model: Any, mesh_cell: float) -> Any:
+    """`build_libero_visual_model` from the XML text robosuite compiled `physics_model` from (absolute asset
+    paths), written to a temporary file."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "libero_task.xml"
+        path.write_text(xml)
+        return build_libero_visual_model(path, physics_model, mesh_cell=float(mesh_cell))
+
+
+def camera_ids(model: Any, cameras: Sequence[str]) -> dict[str, int]:
+    """Each camera name (or alias, CAMERA_ALIASES) -> its camera id in `model`; KeyError names the model's."""
+    import mujoco
+
+    ids = {}
+    for cam in cameras:
+        cid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, CAMERA_ALIASES.get(cam, cam))
+        if cid < 0:
+            names = [model.camera(i).name for i in range(model.ncam)]
+            raise KeyError(f"no camera {cam!r} in LIBERO's model; cameras: {names}")
+        ids[cam] = cid
+    return ids

@@ -192,3 +192,13 @@ class SceneFacts:
 
         contact = touches(self._grip_geoms)
         return contact, contact and touches(self._left) and touches(self._right)
+
+
+def quat_xyzw_to_axis_angle(q: np.ndarray) -> np.ndarray:
+    """Unit quaternion (x, y, z, w) -> axis-angle vector (3,), as robosuite's `quat2axisangle`."""
+    q = np.asarray(q, dtype=np.float64)
+    w = min(1.0, max(-1.0, float(q[3])))
+    den = np.sqrt(1.0 - w * w)
+    if den < 1e-8:
+        return np.zeros(3)
+    return q[:3] * 2.0 * np.arccos(w) / den

@@ -156,3 +156,37 @@ def resolve_task(task: str) -> tuple[str, int | None]:
     if which is not None and not 0 <= which < len(names):
         raise KeyError(f"{suite} has tasks 0..{len(names) - 1}, got {which}")
     return suite, which
+
+
+def make_control_env(bddl_file: str, control_freq: int) -> Any:
+    """LIBERO's `ControlEnv` of one task (its BDDL file), quietly: no cameras or renderers of its own, never
+    done, and `hard_reset=False`, which keeps one MjModel per task (a renderer's GL context is tied to it)."""
+    from libero.libero.envs.env_wrapper import ControlEnv
+
+    with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):
+        warnings.simplefilter("ignore")
+        return ControlEnv(
+            bddl_file_name=bddl_file,
+            use_camera_obs=False,
+            has_renderer=False,
+            has_offscreen_renderer=False,
+            ignore_done=True,
+            hard_reset=False,
+            horizon=10**6,
+            control_freq=control_freq,
+        )
+
+
+def clear_transients(control_env: Any, physics_data: Any) -> None:
+    """What hard_reset=False would carry over from the last episode besides qpos/qvel (which the initial state
+    sets): the grippers' accumulated command, actuator controls and the solver's warm start. Without
+    this, two resets to the same setup differ by millimetres after a few steps."""
+    for robot in control_env.robots:
+        g = getattr(robot, "gripper", None)
+        if g is not None and hasattr(g, "current_action"):
+            g.current_action = np.zeros_like(g.current_action)
+        ctrl = getattr(robot, "controller", None)
+        if ctrl is not None and hasattr(ctrl, "reset_goal"):
+            ctrl.reset_goal()
+    for name in ("ctrl", "act", "qacc_warmstart", "qfrc_applied", "xfrc_applied"):
+        getattr(physics_data, name)[:] = 0

@@ -40,7 +40,6 @@ reward terms.
 from __future__ import annotations
 
 import functools
-import string
 import warnings
 from collections.abc import Sequence
 from typing import Any
@@ -48,6 +47,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from gazereg.envs.base import check_cameras, check_render_mode, image_hw
 from gazereg.envs.camera import CameraGeometry, camera_geometry
 from gazereg.envs.metaworld.instructions import instruction_for
 from gazereg.envs.perturbations import LightState, Perturbation
@@ -55,9 +55,10 @@ from gazereg.envs.render import (
     FastRenderer,
     VisualMirror,
     build_visual_model,
-    default_mesh_cell,
+    resolve_mesh_cell,
     select_gl_backend,
 )
+from gazereg.envs.spaces import env_spaces
 
 SETUPS_PER_BENCHMARK_SEED = 50
 MAX_PATH_LENGTH = 500  # Meta-World refuses to step past this
@@ -75,10 +76,15 @@ def setup_of(seed: int) -> tuple[int, int]:
     return seed // SETUPS_PER_BENCHMARK_SEED, seed % SETUPS_PER_BENCHMARK_SEED
 
 
-def meta_world_tasks() -> list[str]:
+def _v3_environments() -> dict[str, Any]:
+    """Meta-World's v3 task name -> environment class."""
     from metaworld.env_dict import ALL_V3_ENVIRONMENTS
 
-    return list(ALL_V3_ENVIRONMENTS)
+    return ALL_V3_ENVIRONMENTS
+
+
+def meta_world_tasks() -> list[str]:
+    return list(_v3_environments())
 
 
 @functools.lru_cache(maxsize=64)
@@ -125,24 +131,18 @@ class MetaWorldEnv(gym.Env):
         instruction: str | None = None,
         render_mode: str | None = "rgb_array",
     ):
-        from metaworld.env_dict import ALL_V3_ENVIRONMENTS
-
-        if task not in ALL_V3_ENVIRONMENTS:
-            raise KeyError(f"unknown Meta-World task {task!r}; v3 tasks: {sorted(ALL_V3_ENVIRONMENTS)}")
+        envs = _v3_environments()
+        if task not in envs:
+            raise KeyError(f"unknown Meta-World task {task!r}; v3 tasks: {sorted(envs)}")
         if not 1 <= max_steps <= MAX_PATH_LENGTH:
             raise ValueError(
                 f"max_steps must be in [1, {MAX_PATH_LENGTH}] (Meta-World's limit), got {max_steps}"
             )
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be 'rgb_array' or None, got {render_mode!r}")
-        H, W = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
-        if H <= 0 or W <= 0:
-            raise ValueError(f"image size must be positive, got {image_size}")
+        check_render_mode(render_mode)
+        H, W = image_hw(image_size)
         self.task = task
-        self.cameras = tuple(cameras)
-        if len(set(self.cameras)) != len(self.cameras):
-            raise ValueError(f"duplicate cameras in {self.cameras}")
-        self.image_size = (int(H), int(W))
+        self.cameras = check_cameras(cameras)
+        self.image_size = (H, W)
         self.max_steps = int(max_steps)
         self.terminate_on_success = bool(terminate_on_success)
         self.noise_seed = int(noise_seed)
@@ -152,9 +152,28 @@ class MetaWorldEnv(gym.Env):
         self.gl_backend = (gl_backend or select_gl_backend()) if self.cameras else None
         self._perturbation = perturbation or Perturbation()
 
+        self._start_metaworld(envs[task], seed)
+        import mujoco
+
+        self._mj = mujoco
+        self._find_contact_geoms()
+        self._renderer: FastRenderer | None = None
+        self._geometry: dict[str, CameraGeometry] = {}
+        self._cam_ids: dict[str, int] = {}
+        if self.cameras:
+            self._start_rendering(mesh_cell, goal_marker_radius, goal_marker_rgba)
+        self._noise_rng = np.random.default_rng([self.noise_seed, self._setup_seed])
+        self._steps = 0
+        self._last_obs: dict[str, Any] | None = None
+        self.observation_space, self.action_space = env_spaces(
+            self.cameras, H, W, len(STATE_LAYOUT), len(ACTION_LAYOUT)
+        )
+
+    def _start_metaworld(self, env_class: Any, seed: int) -> None:
+        """Meta-World's environment of the task, reset to setup `seed`; fps from its simulation timestep."""
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            self._mw = ALL_V3_ENVIRONMENTS[task]()
+            self._mw = env_class()
         self._setup_seed = int(seed)
         self._next_seed = int(seed)
         self._select_setup(self._setup_seed)
@@ -162,14 +181,12 @@ class MetaWorldEnv(gym.Env):
         self.fps = 1.0 / (float(self._mw.model.opt.timestep) * int(self._mw.frame_skip))
         self.metadata = {**self.metadata, "render_fps": self.fps}
 
-        import mujoco
-
-        self._mj = mujoco
+    def _find_contact_geoms(self) -> None:
+        """The geoms `contact_state` tests: the gripper's, each finger's, and those of movable objects."""
         m = self._mw.model
+        mj = self._mj
         # The gripper: the wrist body `right_hand` (its geoms touch handles and windows) and everything below it.
-        wrist = (
-            "right_hand" if self._mj.mj_name2id(m, self._mj.mjtObj.mjOBJ_BODY, "right_hand") >= 0 else "hand"
-        )
+        wrist = "right_hand" if mj.mj_name2id(m, mj.mjtObj.mjOBJ_BODY, "right_hand") >= 0 else "hand"
         hand_root = _subtree(m, m.body(wrist).id)
         robot_root = int(m.body_rootid[m.body("hand").id])
         geom_body = np.asarray(m.geom_bodyid)
@@ -180,36 +197,22 @@ class MetaWorldEnv(gym.Env):
         movable &= np.asarray(m.body_mocapid) < 0
         self._object_geoms = np.flatnonzero(movable[geom_body])
 
-        self._renderer: FastRenderer | None = None
-        self._geometry: dict[str, CameraGeometry] = {}
-        self._cam_ids: dict[str, int] = {}
-        if self.cameras:
-            cell = default_mesh_cell(H, W) if mesh_cell == "auto" else mesh_cell
-            if isinstance(cell, str):
-                raise ValueError(f"mesh_cell must be 'auto', a size in metres or None, got {mesh_cell!r}")
-            visual = build_visual_model(self._mw.model_name, m, mesh_cell=cell)
-            self._mirror = VisualMirror(m, visual)
-            self._mirror.sync_model()
-            self._mark_goals(goal_marker_radius, goal_marker_rgba)
-            self._base_lights = LightState.capture(visual)
-            self._renderer = FastRenderer(visual, H, W, backend=self.gl_backend)
-            vd = self._mirror.sync_data(self._mw.data)
-            for cam in self.cameras:
-                self._geometry[cam] = camera_geometry(visual, vd, cam, H, W)
-                self._cam_ids[cam] = mujoco.mj_name2id(visual, mujoco.mjtObj.mjOBJ_CAMERA, cam)
-        self._noise_rng = np.random.default_rng([self.noise_seed, self._setup_seed])
-        self._steps = 0
-        self._last_obs: dict[str, Any] | None = None
-
-        image_spaces = {c: gym.spaces.Box(0, 255, (H, W, 3), dtype=np.uint8) for c in self.cameras}
-        self.observation_space = gym.spaces.Dict(
-            {
-                "images": gym.spaces.Dict(image_spaces),
-                "state": gym.spaces.Box(-np.inf, np.inf, (len(STATE_LAYOUT),), dtype=np.float32),
-                "instruction": gym.spaces.Text(max_length=512, charset=string.printable),
-            }
-        )
-        self.action_space = gym.spaces.Box(-1.0, 1.0, (len(ACTION_LAYOUT),), dtype=np.float32)
+    def _start_rendering(
+        self, mesh_cell: float | str | None, goal_radius: float, goal_rgba: Sequence[float]
+    ) -> None:
+        """The render-only copy of the model (simplified meshes, goal markers), its renderer and cameras."""
+        H, W = self.image_size
+        m = self._mw.model
+        visual = build_visual_model(self._mw.model_name, m, mesh_cell=resolve_mesh_cell(mesh_cell, H, W))
+        self._mirror = VisualMirror(m, visual)
+        self._mirror.sync_model()
+        self._mark_goals(goal_radius, goal_rgba)
+        self._base_lights = LightState.capture(visual)
+        self._renderer = FastRenderer(visual, H, W, backend=self.gl_backend)
+        vd = self._mirror.sync_data(self._mw.data)
+        for cam in self.cameras:
+            self._geometry[cam] = camera_geometry(visual, vd, cam, H, W)
+            self._cam_ids[cam] = self._mj.mj_name2id(visual, self._mj.mjtObj.mjOBJ_CAMERA, cam)
 
     # ----- setup ------------------------------------------------------------------------------------------
     def _select_setup(self, seed: int) -> None:

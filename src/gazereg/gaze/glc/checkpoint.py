@@ -103,7 +103,9 @@ def save_glc(model: GLC, cfg: GLCConfig | None, folder: str | Path) -> Path:
     cfg = cfg if cfg is not None else model.cfg
     tensors = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
     with atomic_path(folder / WEIGHTS_NAME) as tmp:
-        save_file(tensors, str(tmp), metadata={"format": "pt", "model": "GLC"})
+        # one metadata key: safetensors writes the metadata map in arbitrary order, and the `glc` source
+        # records this file's SHA-256, which must not change when the same weights are saved again
+        save_file(tensors, str(tmp), metadata={"format": "pt"})
     with atomic_path(folder / CONFIG_NAME) as tmp:
         tmp.write_text(cfg.to_json() + "\n")
     return folder

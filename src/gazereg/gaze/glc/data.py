@@ -17,7 +17,7 @@ Clip geometry (shared by training, the `glc` gaze source and evaluation):
 Gaze points for training come from the episode (`episode_gaze_points`): recorded `gaze_uv.<camera>`
 extras, or any registered gaze source (its `points()` if it has one, otherwise the peak of its maps).
 `StoreClipDataset` serves `(clip uint8 (3, T, S, S), gaze (T, 2) in crop coordinates, valid (T,))`, the
-items `gazereg.training.glc.train_glc` expects. `split_episodes` picks held-out episodes deterministically.
+items `gazereg.training.glc.train_glc` expects (held-out episodes: `gazereg.gaze.glc.evaluate.holdout_split`).
 `write_synthetic_gaze_store` builds a toy store (moving coloured squares, gaze on the target square).
 """
 
@@ -34,6 +34,8 @@ import torch.nn.functional as F
 from torch.utils.data import Dataset
 
 from gazereg.data.store import Episode, EpisodeStore
+from gazereg.gaze.sources import GazeSource, make_gaze_source
+from gazereg.gaze.sources.recorded import RecordedParams
 
 # ---- clip geometry -----------------------------------------------------------------------------------
 
@@ -144,45 +146,61 @@ def map_peaks(heatmaps: np.ndarray) -> np.ndarray:
     return np.stack([(j + 0.5) / w, (i + 0.5) / h], axis=1).astype(np.float32)
 
 
-def episode_gaze_points(
-    episode: Episode, camera: str, source: Any = "recorded", key: str = "gaze_uv", peak_size: int = 64
+def _recorded_points(episode: Episode, camera: str, key: str) -> tuple[np.ndarray, np.ndarray]:
+    """`extra.<key>.<camera>` `(T, 2)` and `extra.gaze_valid.<camera>` `(T,)` (all True when absent)."""
+    T = episode.length
+    name = f"{key}.{camera}"
+    if name not in episode.extras:
+        have = sorted(k for k in episode.extras if k.startswith("gaze"))
+        raise KeyError(
+            f"episode {episode.index} has no recorded gaze {name!r} (gaze extras: {have or 'none'})"
+        )
+    pts = np.asarray(episode.extras[name], dtype=np.float32).reshape(T, 2)
+    valid = np.ones(T, bool)
+    if f"gaze_valid.{camera}" in episode.extras:
+        valid &= np.asarray(episode.extras[f"gaze_valid.{camera}"]).astype(bool).reshape(T)
+    return pts, valid
+
+
+def _source_points(
+    episode: Episode, camera: str, source: Any, peak_size: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per-frame gaze points `(T, 2)` normalised `(u, v)` in the stored frame, and `valid (T,)`.
+    """A gaze source's own points (`points()`, or `trace()` of the visuomotor source), else its maps' peaks."""
+    T = episode.length
+    if hasattr(source, "points"):
+        pts, valid = source.points(episode, camera)
+    elif hasattr(source, "trace"):  # the visuomotor source: a GazeTrace with uv (T, 2) and valid (T,)
+        trace = source.trace(episode, camera)
+        pts, valid = trace.uv, trace.valid
+    else:
+        maps, valid = source(episode, camera, (peak_size, peak_size))
+        return map_peaks(np.asarray(maps)), np.asarray(valid).astype(bool)
+    return np.asarray(pts, dtype=np.float32).reshape(T, 2), np.asarray(valid).astype(bool).reshape(T)
+
+
+def episode_gaze_points(
+    episode: Episode,
+    camera: str,
+    source: str | RecordedParams | GazeSource = "recorded",
+    key: str = "gaze_uv",
+    peak_size: int = 64,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame gaze points `(T, 2)` normalised `(u, v)` in the stored frame (NaN where not valid), and
+    `valid (T,)`.
 
     Args:
-        source: `"recorded"` reads `extra.<key>.<camera>` (NaN = lost) and `extra.gaze_valid.<camera>`;
-            anything else is a gaze source name or object: its `points(episode, camera)` or
-            `trace(episode, camera)` (`.uv`, `.valid`; the visuomotor source) if it has one, otherwise the
-            peak cell of its `peak_size` maps.
+        source: `"recorded"` reads `extra.<key>.<camera>` (NaN = lost) and `extra.gaze_valid.<camera>`, and so
+            do `RecordedParams` (with their own `key`); anything else is a gaze source name or object: its
+            `points(episode, camera)` or `trace(episode, camera)` (`.uv`, `.valid`; the visuomotor source) if
+            it has one, otherwise the peak cell of its `peak_size` x `peak_size` maps.
     """
-    T = episode.length
-    if source == "recorded":
-        name = f"{key}.{camera}"
-        if name not in episode.extras:
-            have = sorted(k for k in episode.extras if k.startswith("gaze"))
-            raise KeyError(
-                f"episode {episode.index} has no recorded gaze {name!r} (gaze extras: {have or 'none'})"
-            )
-        pts = np.asarray(episode.extras[name], dtype=np.float32).reshape(T, 2)
-        valid = np.ones(T, bool)
-        if f"gaze_valid.{camera}" in episode.extras:
-            valid &= np.asarray(episode.extras[f"gaze_valid.{camera}"]).astype(bool).reshape(T)
+    if isinstance(source, RecordedParams):
+        pts, valid = _recorded_points(episode, camera, source.key)
+    elif isinstance(source, str) and source == "recorded":
+        pts, valid = _recorded_points(episode, camera, key)
     else:
-        if isinstance(source, str):
-            from gazereg.gaze.sources import make_gaze_source
-
-            source = make_gaze_source(source)
-        if hasattr(source, "points") or hasattr(source, "trace"):
-            if hasattr(source, "points"):
-                pts, valid = source.points(episode, camera)
-            else:  # the visuomotor source: a GazeTrace with uv (T, 2) and valid (T,)
-                trace = source.trace(episode, camera)
-                pts, valid = trace.uv, trace.valid
-            pts = np.asarray(pts, dtype=np.float32).reshape(T, 2)
-            valid = np.asarray(valid).astype(bool).reshape(T)
-        else:
-            maps, valid = source(episode, camera, (peak_size, peak_size))
-            pts, valid = map_peaks(np.asarray(maps)), np.asarray(valid).astype(bool)
+        source = make_gaze_source(source) if isinstance(source, str) else source
+        pts, valid = _source_points(episode, camera, source, peak_size)
     valid = valid & np.isfinite(pts).all(1) & ((pts >= 0) & (pts <= 1)).all(1)
     pts = np.where(valid[:, None], pts, np.nan).astype(np.float32)
     return pts, valid
@@ -198,36 +216,6 @@ def fixation_mask(points: np.ndarray, valid: np.ndarray, max_move: float) -> np.
     move[1:] = np.linalg.norm(np.diff(np.nan_to_num(points), axis=0), axis=1)
     move[1:][~valid[:-1]] = 0.0
     return valid & (move <= max_move)
-
-
-# ---- splits --------------------------------------------------------------------------------------------
-
-
-def split_episodes(
-    store: EpisodeStore, holdout_every: int = 5, holdout: Sequence[int] = ()
-) -> dict[str, list[int]]:
-    """Deterministic train / held-out split by episode index.
-
-    `holdout` lists the held-out indices explicitly; otherwise, within each task (episodes sorted by
-    index), every `holdout_every`-th episode is held out (ranks `holdout_every - 1, 2 * holdout_every - 1,
-    ...`), so every task with at least `holdout_every` episodes contributes to both sides.
-    """
-    indices = store.indices()
-    if holdout:
-        missing = sorted(set(holdout) - set(indices))
-        if missing:
-            raise KeyError(f"held-out episodes {missing} are not in {store.root}")
-        held = sorted(set(holdout))
-    else:
-        if holdout_every < 2:
-            raise ValueError(f"holdout_every must be >= 2, got {holdout_every}")
-        by_task: dict[str, list[int]] = {}
-        for i in indices:
-            by_task.setdefault(store.meta(i)["task"], []).append(i)
-        held = sorted(
-            i for eps in by_task.values() for r, i in enumerate(eps) if r % holdout_every == holdout_every - 1
-        )
-    return {"train": [i for i in indices if i not in set(held)], "heldout": held}
 
 
 # ---- training data -----------------------------------------------------------------------------------
@@ -274,8 +262,6 @@ class StoreClipDataset(Dataset):
         source: Any = "recorded",
     ) -> None:
         if isinstance(source, str) and source != "recorded":
-            from gazereg.gaze.sources import make_gaze_source
-
             source = make_gaze_source(source)
         if hasattr(source, "bind"):
             source.bind(store)
@@ -387,7 +373,6 @@ __all__ = [
     "normalize",
     "points_to_crop",
     "preprocess_frames",
-    "split_episodes",
     "synthetic_gaze_episode",
     "write_synthetic_gaze_store",
 ]

@@ -29,6 +29,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import torch
 
+from gazereg.gaze.glc.targets import gaze_target_maps
+
 THRESHOLDS = np.linspace(0.0, 0.02, 11)
 GT_BINARY_THRESHOLD = 0.001
 AUC_SIGMA_AT_64 = 3.2
@@ -217,7 +219,7 @@ def evaluate_gaze(
         gaze_points: `(N, T, 2)` normalised `(u, v)`.
         valid: `(N, T)` whether the gaze point exists (missing -> uniform target, excluded from AUC).
         frame_mask: `(N, T)` frames to score (e.g. fixations); combined with `valid` for the AUC.
-        gt_heatmaps: targets; default the training targets (`gazereg.training.glc.gaze_target_maps`).
+        gt_heatmaps: targets; default the training targets (`gazereg.gaze.glc.targets.gaze_target_maps`).
     """
     p = _frames(pred_maps)
     pts = torch.as_tensor(_frames(gaze_points, ndim_tail=1), dtype=torch.float32)
@@ -225,8 +227,6 @@ def evaluate_gaze(
     vmask = _mask(valid, n)
     fmask = _mask(frame_mask, n)
     if gt_heatmaps is None:
-        from gazereg.training.glc import gaze_target_maps
-
         gt_heatmaps = gaze_target_maps(pts, torch.as_tensor(vmask), p.shape[1:]).numpy()
     scores = f1_recall_precision(p, gt_heatmaps, fmask, thresholds)
     in_frame = ((pts >= 0) & (pts <= 1)).all(-1).numpy()

@@ -168,6 +168,56 @@ class GLCConfig:
         return json.dumps(self.to_dict(), indent=2, sort_keys=True)
 
 
+def _encoder_blocks(cfg: GLCConfig, specs: list[dict[str, Any]]) -> nn.ModuleList:
+    """The MViT encoder blocks (drop-path rising linearly from 0 to `cfg.drop_path_rate`)."""
+    dpr = torch.linspace(0, cfg.drop_path_rate, cfg.depth).tolist()
+    kq = cfg.pool_kernel
+    return nn.ModuleList(
+        MultiScaleBlock(
+            s["dim"],
+            s["dim_out"],
+            s["heads"],
+            int(s["dim"] * cfg.mlp_ratio),
+            qkv_bias=cfg.qkv_bias,
+            kernel_q=kq if s["stride_q"] != (1, 1, 1) else (1, 1, 1),
+            stride_q=s["stride_q"],
+            kernel_kv=kq,
+            stride_kv=s["stride_kv"],
+            skip="maxpool",
+            drop_path=dpr[i],
+            eps=cfg.norm_eps,
+        )
+        for i, s in enumerate(specs)
+    )
+
+
+def _decoder_blocks(cfg: GLCConfig, specs: list[dict[str, Any]]) -> list[MultiScaleBlock]:
+    """The decoder blocks, coarsest first: each upsamples the queries and adds the matching encoder stage
+    (the last one the patch embedding), down to `cfg.embed_dim` channels."""
+    d_last = specs[-1]["dim_out"]
+    skip_dims = [cfg.embed_dim] + [specs[b - 1]["dim_out"] for b in cfg.q_stride_blocks]
+    dec_out = skip_dims[::-1]
+    dec_in = [2 * d_last] + dec_out[:-1]
+    dec_stride_q = [tuple(cfg.q_stride)] * len(cfg.q_stride_blocks) + [(cfg.patch_stride[0], 1, 1)]
+    return [
+        MultiScaleBlock(
+            dec_in[j],
+            dec_out[j],
+            cfg.decoder_heads[j],
+            int(dec_out[j] * cfg.mlp_ratio),
+            qkv_bias=cfg.qkv_bias,
+            kernel_q=cfg.pool_kernel,
+            stride_q=dec_stride_q[j],
+            kernel_kv=cfg.pool_kernel,
+            stride_kv=tuple(cfg.decoder_kv_strides[j]),
+            q_mode="upsample",
+            skip="upsample",
+            eps=cfg.norm_eps,
+        )
+        for j in range(len(dec_in))
+    ]
+
+
 class GLC(nn.Module):
     """The GLC gaze estimator. `forward(x: (B,3,T,H,W) normalised clip) -> logits (B,1,T,h,w)`.
 
@@ -188,27 +238,10 @@ class GLC(nn.Module):
         self.global_embed = GlobalEmbed(e, e, cfg.global_grid, cfg.global_embed_convs)
 
         specs = cfg.block_specs()
-        dpr = torch.linspace(0, cfg.drop_path_rate, cfg.depth).tolist()
-        kq = cfg.pool_kernel
-        self.blocks = nn.ModuleList(
-            MultiScaleBlock(
-                s["dim"],
-                s["dim_out"],
-                s["heads"],
-                int(s["dim"] * cfg.mlp_ratio),
-                qkv_bias=cfg.qkv_bias,
-                kernel_q=kq if s["stride_q"] != (1, 1, 1) else (1, 1, 1),
-                stride_q=s["stride_q"],
-                kernel_kv=kq,
-                stride_kv=s["stride_kv"],
-                skip="maxpool",
-                drop_path=dpr[i],
-                eps=cfg.norm_eps,
-            )
-            for i, s in enumerate(specs)
-        )
+        self.blocks = _encoder_blocks(cfg, specs)
         self.stage_ends = tuple(b - 1 for b in cfg.q_stride_blocks)
         d_last, heads_last = specs[-1]["dim_out"], specs[-1]["heads"]
+        kq = cfg.pool_kernel
         self.global_fuse = MultiScaleBlock(
             d_last,
             d_last,
@@ -223,27 +256,9 @@ class GLC(nn.Module):
             eps=cfg.norm_eps,
         )
         self.norm = nn.LayerNorm(2 * d_last, eps=cfg.norm_eps)
-
-        skip_dims = [e] + [specs[b - 1]["dim_out"] for b in cfg.q_stride_blocks]
-        dec_out = skip_dims[::-1]
-        dec_in = [2 * d_last] + dec_out[:-1]
-        dec_stride_q = [tuple(cfg.q_stride)] * len(cfg.q_stride_blocks) + [(cfg.patch_stride[0], 1, 1)]
-        self.num_decoder_blocks = len(dec_in)
-        for j in range(self.num_decoder_blocks):
-            block = MultiScaleBlock(
-                dec_in[j],
-                dec_out[j],
-                cfg.decoder_heads[j],
-                int(dec_out[j] * cfg.mlp_ratio),
-                qkv_bias=cfg.qkv_bias,
-                kernel_q=kq,
-                stride_q=dec_stride_q[j],
-                kernel_kv=kq,
-                stride_kv=tuple(cfg.decoder_kv_strides[j]),
-                q_mode="upsample",
-                skip="upsample",
-                eps=cfg.norm_eps,
-            )
+        decoder = _decoder_blocks(cfg, specs)
+        self.num_decoder_blocks = len(decoder)
+        for j, block in enumerate(decoder):
             self.add_module(f"decode_block{j + 1}", block)
         self.classifier = nn.Conv3d(e, 1, kernel_size=1)
         self._init_weights()

@@ -1,24 +1,28 @@
 """Gaze sources: where a person would look in every frame of an episode.
 
 A source turns one episode (one camera) into per-frame heatmaps on an (h, w) grid in the image as the policy
-sees it, plus a validity mask. Sources register under a name and are built by one factory:
+sees it, plus a validity mask. Each source has a frozen parameters dataclass (`GazeSourceParams`, see
+`gazereg.gaze.sources.params`); both register under the source's name, and one factory builds a source from
+its parameters (or from its name and parameter values):
 
-    source = make_gaze_source("visuomotor", lead_time_s=0.4)
+    source = make_gaze_source(VisuomotorParams(lead_time_s=0.4))     # or make_gaze_source("visuomotor", lead_time_s=0.4)
     heatmaps, valid = source(episode, camera="corner2", size=(64, 64))   # (T, h, w) float32, (T,) bool
+    params = parse_source_params("glc", ["checkpoint=runs/glc/final", "stride=1"])   # command-line text
 
-Built in: `uniform`, `saliency`, `perturbed` (here), `visuomotor` (simulation), `recorded` (eye tracking
+Built in: `uniform`, `saliency` (`simple`), `perturbed`, `visuomotor` (simulation), `recorded` (eye tracking
 stored with the episode), `glc` (the video gaze estimator). Third-party sources register the same way.
 """
 
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable
-from typing import Any, Protocol
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
 from gazereg.data.store import Episode
+from gazereg.gaze.sources.params import GazeSourceParams, params_from_strings
 
 
 class GazeSource(Protocol):
@@ -35,7 +39,11 @@ class GazeSource(Protocol):
         ...
 
 
-_REGISTRY: dict[str, Callable[..., GazeSource]] = {}
+P = TypeVar("P", bound=GazeSourceParams)
+Factory = Callable[[Any], GazeSource]
+
+_REGISTRY: dict[str, tuple[type[GazeSourceParams], Factory]] = {}
+"""source name -> (its parameters dataclass, the factory that builds it from them)"""
 # Sources that live in modules with heavier imports register when their module is imported.
 _LAZY = {
     "uniform": "gazereg.gaze.sources.simple",
@@ -47,13 +55,17 @@ _LAZY = {
 }
 
 
-def register_gaze_source(name: str) -> Callable[[Callable[..., GazeSource]], Callable[..., GazeSource]]:
-    """Decorator: register a factory (usually the source class) under `name`."""
+def register_gaze_source(params: type[P]) -> Callable[[Callable[[P], GazeSource]], Callable[[P], GazeSource]]:
+    """Decorator: register a factory (usually the source class, called with its parameters) under the name
+    `params.name`."""
+    name = params.name
+    if not name:
+        raise ValueError(f"{params.__name__} names no source: give it a class attribute `name`")
 
-    def deco(factory: Callable[..., GazeSource]) -> Callable[..., GazeSource]:
-        if name in _REGISTRY and _REGISTRY[name] is not factory:
-            raise ValueError(f"gaze source {name!r} is already registered by {_REGISTRY[name]}")
-        _REGISTRY[name] = factory
+    def deco(factory: Callable[[P], GazeSource]) -> Callable[[P], GazeSource]:
+        if name in _REGISTRY and _REGISTRY[name][1] is not factory:
+            raise ValueError(f"gaze source {name!r} is already registered by {_REGISTRY[name][1]}")
+        _REGISTRY[name] = (params, factory)
         return factory
 
     return deco
@@ -63,13 +75,39 @@ def available_gaze_sources() -> list[str]:
     return sorted(set(_REGISTRY) | set(_LAZY))
 
 
-def make_gaze_source(name: str, **params: Any) -> GazeSource:
-    """Build a registered gaze source; unknown names and parameters are errors that list what exists."""
+def _entry(name: str) -> tuple[type[GazeSourceParams], Factory]:
     if name not in _REGISTRY and name in _LAZY:
         importlib.import_module(_LAZY[name])
     if name not in _REGISTRY:
         raise KeyError(f"unknown gaze source {name!r}; available: {available_gaze_sources()}")
+    return _REGISTRY[name]
+
+
+def params_type(name: str) -> type[GazeSourceParams]:
+    """The parameters dataclass of the registered source `name`."""
+    return _entry(name)[0]
+
+
+def gaze_source_params(name: str, **values: Any) -> GazeSourceParams:
+    """The parameters of source `name` with `values` (the rest at their defaults)."""
     try:
-        return _REGISTRY[name](**params)
+        return params_type(name)(**values)
     except TypeError as e:
         raise TypeError(f"bad parameters for gaze source {name!r}: {e}") from e
+
+
+def parse_source_params(name: str, items: Sequence[str]) -> GazeSourceParams:
+    """The parameters of source `name` from command-line `key=value` items (`params_from_strings`)."""
+    return params_from_strings(params_type(name), items)
+
+
+def make_gaze_source(source: str | GazeSourceParams, **values: Any) -> GazeSource:
+    """Build a gaze source from its parameters, or from its name and parameter values; unknown names and
+    parameters are errors that list what exists."""
+    if isinstance(source, GazeSourceParams):
+        if values:
+            raise TypeError(f"pass the parameters of gaze source {source.name!r} once, not also {values}")
+        params = source
+    else:
+        params = gaze_source_params(source, **values)
+    return _entry(params.name)[1](params)

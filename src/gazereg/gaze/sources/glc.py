@@ -1,7 +1,7 @@
 """The `glc` gaze source: per-frame gaze maps predicted by the GLC video gaze estimator.
 
     gazereg priors --store S --source glc --source-params checkpoint=runs/glc/final stride=2
-    make_gaze_source("glc", checkpoint="GLC_ego4d.pyth", config="full", mode="centre")
+    make_gaze_source(GLCParams(checkpoint=Path("GLC_ego4d.pyth"), config="full", mode="centre"))
 
 For frame t the 8-frame clip is centred on t: frames `t + (k - 4) * stride`, k = 0..7 (t at position 4),
 edge frames repeated (`gazereg.gaze.glc.data.clip_indices`). Frames are used as stored (upright, as the policy
@@ -23,20 +23,25 @@ from __future__ import annotations
 
 import hashlib
 import json
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
 from gazereg.data.store import Episode
+from gazereg.gaze.glc.checkpoint import CONFIG_NAME, WEIGHTS_NAME, load_glc, load_glc_checkpoint
 from gazereg.gaze.glc.data import average_anchors, clip_indices, normalize, preprocess_frames, resized_size
 from gazereg.gaze.glc.model import GLC, GLCConfig, frame_softmax
 from gazereg.gaze.sources import register_gaze_source
+from gazereg.gaze.sources.params import GazeSourceParams
 
 CONFIGS = {"full": GLCConfig.full, "small": GLCConfig.small}
 MODES = ("centre", "average")
+GLCConfigName = Literal["full", "small"]
+GLCMode = Literal["centre", "average"]
 
 
 def config_name(cfg: GLCConfig) -> str:
@@ -64,8 +69,6 @@ def load_glc_model(
     file (architecture from `config`, default `full`), or the literal `random` (random weights seeded by
     `seed`: only for tests and benchmarks).
     """
-    from gazereg.gaze.glc.checkpoint import CONFIG_NAME, WEIGHTS_NAME, load_glc, load_glc_checkpoint
-
     if checkpoint is None or str(checkpoint) == "":
         raise ValueError(
             "the glc gaze source needs a checkpoint: checkpoint=<folder written by `gazereg glc train`> or "
@@ -99,46 +102,57 @@ def load_glc_model(
     return model.eval(), {"checkpoint": str(path.resolve()), "checkpoint_sha256": file_sha256(weights, 16)}
 
 
-@register_gaze_source("glc")
-class GLCGaze:
-    """Gaze maps from a GLC checkpoint (see the module docstring).
+@dataclass(frozen=True)
+class GLCParams(GazeSourceParams):
+    """Parameters of the `glc` source.
 
-    Args:
-        checkpoint: folder from `gazereg glc train` / `save_glc`, an official checkpoint file, or `random`.
-        config: `full` | `small` for official files and `random` (folders carry their own config).
-        stride: frames between the clip's frames (the clip spans `8 * stride` frames).
-        mode: `average` (default) or `centre`.
-        hop: in `average` mode, clip spacing in frames of one stride phase.
-        batch_size: clips per forward pass.
-        device: torch device to run on (explicit; default cpu).
-        temperature: softmax temperature (default: the model's, 2).
-        seed: the seed of `checkpoint=random`.
+    checkpoint: folder from `gazereg glc train` / `save_glc`, an official checkpoint file, or `random`.
+    config: `full` | `small` for official files and `random` (folders carry their own config).
+    stride: frames between the clip's frames (the clip spans `8 * stride` frames).
+    mode: `average` (default) or `centre`.
+    hop: in `average` mode, clip spacing in frames of one stride phase.
+    batch_size: clips per forward pass.
+    device: torch device to run on (explicit; default cpu).
+    temperature: softmax temperature (default: the model's, 2).
+    seed: the seed of `checkpoint=random`.
     """
+
+    name: ClassVar[str] = "glc"
+    checkpoint: Path | None = None
+    config: GLCConfigName | None = None
+    stride: int = 2
+    mode: GLCMode = "average"
+    hop: int = 4
+    batch_size: int = 8
+    device: str = "cpu"
+    temperature: float | None = None
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
+        if self.config is not None and self.config not in CONFIGS:
+            raise ValueError(f"unknown GLC config {self.config!r}; use one of {sorted(CONFIGS)}")
+        if self.stride < 1 or self.hop < 1 or self.batch_size < 1:
+            raise ValueError(
+                f"stride, hop and batch_size must be >= 1, got {self.stride}, {self.hop}, {self.batch_size}"
+            )
+
+
+@register_gaze_source(GLCParams)
+class GLCGaze:
+    """Gaze maps from a GLC checkpoint (see the module docstring and `GLCParams`)."""
 
     name = "glc"
 
-    def __init__(
-        self,
-        checkpoint: str | None = None,
-        config: str | None = None,
-        stride: int = 2,
-        mode: str = "average",
-        hop: int = 4,
-        batch_size: int = 8,
-        device: str = "cpu",
-        temperature: float | None = None,
-        seed: int = 0,
-    ):
-        if mode not in MODES:
-            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
-        if stride < 1 or hop < 1 or batch_size < 1:
-            raise ValueError(f"stride, hop and batch_size must be >= 1, got {stride}, {hop}, {batch_size}")
-        self.model, self._provenance = load_glc_model(checkpoint, config, seed)
+    def __init__(self, params: GLCParams = GLCParams()):
+        self.model, self._provenance = load_glc_model(params.checkpoint, params.config, params.seed)
         self.cfg = self.model.cfg
-        self.device = torch.device(device)
+        self.device = torch.device(params.device)
         self.model.to(self.device)
-        self.stride, self.mode, self.hop, self.batch_size = int(stride), mode, int(hop), int(batch_size)
-        self.temperature = float(self.cfg.temperature if temperature is None else temperature)
+        self.stride, self.mode, self.hop = int(params.stride), params.mode, int(params.hop)
+        self.batch_size = int(params.batch_size)
+        self.temperature = float(self.cfg.temperature if params.temperature is None else params.temperature)
 
     def describe(self) -> dict[str, Any]:
         """Everything that determines the maps (batch size and device do not, so a run can resume elsewhere)."""

@@ -10,31 +10,45 @@ Modes (all deterministic per episode and seed):
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 
 from gazereg.data.store import Episode, EpisodeStore
 from gazereg.gaze.sources import register_gaze_source
+from gazereg.gaze.sources.params import GazeSourceParams
+
+PerturbationMode = Literal["blobs", "shuffle", "other_episode"]
 
 
-@register_gaze_source("perturbed")
+@dataclass(frozen=True)
+class PerturbedParams(GazeSourceParams):
+    """`mode`: the perturbation (module docstring); `base`: the stored prior that `shuffle` and
+    `other_episode` perturb; `seed`; `n_blobs` squares of `blob_cells` x `blob_cells` cells per frame
+    (`blobs`); `block`: side of the shuffled blocks, cells (`shuffle`)."""
+
+    name: ClassVar[str] = "perturbed"
+    mode: PerturbationMode = "shuffle"
+    base: str = "visuomotor"
+    seed: int = 0
+    n_blobs: int = 10
+    blob_cells: int = 5
+    block: int = 8
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("blobs", "shuffle", "other_episode"):
+            raise ValueError(f"unknown perturbation {self.mode!r}; use blobs, shuffle or other_episode")
+
+
+@register_gaze_source(PerturbedParams)
 class PerturbedGaze:
     name = "perturbed"
 
-    def __init__(
-        self,
-        mode: Literal["blobs", "shuffle", "other_episode"] = "shuffle",
-        base: str = "visuomotor",
-        seed: int = 0,
-        n_blobs: int = 10,
-        blob_cells: int = 5,
-        block: int = 8,
-    ):
-        if mode not in ("blobs", "shuffle", "other_episode"):
-            raise ValueError(f"unknown perturbation {mode!r}; use blobs, shuffle or other_episode")
-        self.mode, self.base, self.seed = mode, base, seed
-        self.n_blobs, self.blob_cells, self.block = n_blobs, blob_cells, block
+    def __init__(self, params: PerturbedParams = PerturbedParams()):
+        self.params = params
+        self.mode, self.base, self.seed = params.mode, params.base, params.seed
+        self.n_blobs, self.blob_cells, self.block = params.n_blobs, params.blob_cells, params.block
         self.store: EpisodeStore | None = None
 
     def bind(self, store: EpisodeStore) -> None:

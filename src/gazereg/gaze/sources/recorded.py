@@ -6,24 +6,38 @@ the tracker lost the eye, and optionally `extra.gaze_valid.<camera>` (T,) bool. 
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
 from gazereg.data.store import Episode
 from gazereg.gaze.heatmaps import heatmaps_from_points
 from gazereg.gaze.sources import register_gaze_source
+from gazereg.gaze.sources.params import GazeSourceParams
 
 
-@register_gaze_source("recorded")
+@dataclass(frozen=True)
+class RecordedParams(GazeSourceParams):
+    """`sigma`: Gaussian standard deviation as a fraction of the map width (0.05 of 64 cells = 3.2);
+    `key`: the extras' name before `.<camera>`."""
+
+    name: ClassVar[str] = "recorded"
+    sigma: float = 0.05
+    key: str = "gaze_uv"
+
+    def __post_init__(self) -> None:
+        if self.sigma <= 0:
+            raise ValueError(f"sigma must be > 0, got {self.sigma}")
+
+
+@register_gaze_source(RecordedParams)
 class RecordedGaze:
     name = "recorded"
 
-    def __init__(self, sigma: float = 0.05, key: str = "gaze_uv"):
-        """sigma: Gaussian standard deviation as a fraction of the map width (0.05 of 64 cells = 3.2)."""
-        if sigma <= 0:
-            raise ValueError(f"sigma must be > 0, got {sigma}")
-        self.sigma, self.key = sigma, key
+    def __init__(self, params: RecordedParams = RecordedParams()):
+        self.params = params
+        self.sigma, self.key = params.sigma, params.key
 
     def describe(self) -> dict[str, Any]:
         return {"name": self.name, "sigma": self.sigma, "key": self.key}

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
@@ -10,13 +11,24 @@ import torch.nn.functional as F
 
 from gazereg.data.store import Episode
 from gazereg.gaze.sources import register_gaze_source
+from gazereg.gaze.sources.params import GazeSourceParams
 
 
-@register_gaze_source("uniform")
+@dataclass(frozen=True)
+class UniformParams(GazeSourceParams):
+    """The uniform source has no parameters."""
+
+    name: ClassVar[str] = "uniform"
+
+
+@register_gaze_source(UniformParams)
 class UniformGaze:
     """Every frame uniform: the 'no information' control (pushes attention to spread evenly)."""
 
     name = "uniform"
+
+    def __init__(self, params: UniformParams = UniformParams()):
+        self.params = params
 
     def __call__(self, episode: Episode, camera: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         T = episode.length
@@ -26,7 +38,27 @@ class UniformGaze:
         return {"name": self.name}
 
 
-@register_gaze_source("saliency")
+@dataclass(frozen=True)
+class SaliencyParams(GazeSourceParams):
+    """`work_size`: side of the square image the contrast is computed on, pixels; `centre`, `surround`,
+    `blur_sigma`, `centre_sigma`: Gaussian standard deviations as fractions of `work_size` (0 disables the
+    centre bias)."""
+
+    name: ClassVar[str] = "saliency"
+    work_size: int = 64
+    centre: float = 0.02
+    surround: float = 0.15
+    blur_sigma: float = 0.03
+    centre_sigma: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.work_size < 8:
+            raise ValueError(f"work_size must be >= 8 px, got {self.work_size}")
+        if not 0 <= self.centre < self.surround:
+            raise ValueError(f"need 0 <= centre < surround, got {self.centre}, {self.surround}")
+
+
+@register_gaze_source(SaliencyParams)
 class ContrastSaliency:
     """Bottom-up image saliency: centre-surround colour contrast (a difference of Gaussians, Itti-style)
     with an optional centre bias.
@@ -37,20 +69,10 @@ class ContrastSaliency:
 
     name = "saliency"
 
-    def __init__(
-        self,
-        work_size: int = 64,
-        centre: float = 0.02,
-        surround: float = 0.15,
-        blur_sigma: float = 0.03,
-        centre_sigma: float = 0.0,
-    ):
-        if work_size < 8:
-            raise ValueError(f"work_size must be >= 8 px, got {work_size}")
-        if not 0 <= centre < surround:
-            raise ValueError(f"need 0 <= centre < surround, got {centre}, {surround}")
-        self.work_size, self.centre, self.surround = work_size, centre, surround
-        self.blur_sigma, self.centre_sigma = blur_sigma, centre_sigma
+    def __init__(self, params: SaliencyParams = SaliencyParams()):
+        self.params = params
+        self.work_size, self.centre, self.surround = params.work_size, params.centre, params.surround
+        self.blur_sigma, self.centre_sigma = params.blur_sigma, params.centre_sigma
 
     def describe(self) -> dict[str, Any]:
         return {

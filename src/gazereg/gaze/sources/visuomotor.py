@@ -32,12 +32,14 @@ from __future__ import annotations
 
 import zlib
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from gazereg.data.store import Episode
+from gazereg.gaze.heatmaps import heatmaps_from_points
 from gazereg.gaze.sources import register_gaze_source
+from gazereg.gaze.sources.params import GazeSourceParams
 
 # Tasks where the hand has no object to act on: the eyes go straight to the goal.
 GOAL_ONLY_TASKS = frozenset({"reach-v3", "reach-wall-v3"})
@@ -62,75 +64,85 @@ class GazeTrace:
     switches: tuple[int, ...]
 
 
-@register_gaze_source("visuomotor")
-class VisuomotorGaze:
-    """Gaze from simulated eye-hand coordination (see the module docstring for the model).
+@dataclass(frozen=True)
+class VisuomotorParams(GazeSourceParams):
+    """Parameters of simulated eye-hand coordination (see the module docstring for the model).
 
-    Args:
-        lead_time_s: the eyes reach each target at least this long before the hand (when the hand's approach
-            takes longer than this); seconds.
-        dwell_s: how long the eyes stay on a target after the hand arrives there; seconds.
-        saccade_s: duration of a saccade; seconds.
-        jitter: std of fixational jitter, normalised image units (0.01 is about 1 px at 96 px).
-        jitter_rho: frame-to-frame correlation of the jitter (0: white noise).
-        blink_rate_hz: blinks per second (frames during a blink are invalid); 0 disables.
-        blink_s: duration of a blink; seconds.
-        missing_rate: probability that a single frame's sample is missing.
-        sigma: heatmap Gaussian std as a fraction of the heatmap width.
-        arrive_radius: the hand "arrives" within this distance of a target (metres).
-        targets: target sequence, or None for the task's default (see GOAL_ONLY_TASKS).
-        fps: frames per second of the episodes; None reads episode.meta["fps"] (Meta-World: 80).
-        seed: random seed (combined with the episode's seed and task).
+    lead_time_s: the eyes reach each target at least this long before the hand (when the hand's approach takes
+        longer than this); seconds.
+    dwell_s: how long the eyes stay on a target after the hand arrives there; seconds.
+    saccade_s: duration of a saccade; seconds.
+    jitter: std of fixational jitter, normalised image units (0.01 is about 1 px at 96 px).
+    jitter_rho: frame-to-frame correlation of the jitter (0: white noise).
+    blink_rate_hz: blinks per second (frames during a blink are invalid); 0 disables.
+    blink_s: duration of a blink; seconds.
+    missing_rate: probability that a single frame's sample is missing.
+    sigma: heatmap Gaussian std as a fraction of the heatmap width.
+    arrive_radius: the hand "arrives" within this distance of a target (metres).
+    targets: target sequence, or None for the task's default (see GOAL_ONLY_TASKS).
+    fps: frames per second of the episodes; None reads episode.meta["fps"] (Meta-World: 80).
+    seed: random seed (combined with the episode's seed and task).
     """
+
+    name: ClassVar[str] = "visuomotor"
+    lead_time_s: float = 1.0
+    dwell_s: float = 0.05
+    saccade_s: float = 0.04
+    jitter: float = 0.008
+    jitter_rho: float = 0.7
+    blink_rate_hz: float = 0.0
+    blink_s: float = 0.12
+    missing_rate: float = 0.0
+    sigma: float = 0.05
+    arrive_radius: float = 0.03
+    targets: tuple[str, ...] | None = None
+    fps: float | None = None
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for k in (
+            "lead_time_s",
+            "dwell_s",
+            "saccade_s",
+            "jitter",
+            "blink_rate_hz",
+            "blink_s",
+            "arrive_radius",
+        ):
+            if not getattr(self, k) >= 0:
+                raise ValueError(f"{k} must be >= 0, got {getattr(self, k)}")
+        if not 0 <= self.missing_rate <= 1 or not 0 <= self.jitter_rho < 1:
+            raise ValueError(
+                f"need 0 <= missing_rate <= 1 and 0 <= jitter_rho < 1, got {self.missing_rate}, {self.jitter_rho}"
+            )
+        if not self.sigma > 0:
+            raise ValueError(f"sigma must be > 0 (a fraction of the heatmap width), got {self.sigma}")
+        if self.fps is not None and not self.fps > 0:
+            raise ValueError(f"fps must be > 0, got {self.fps}")
+
+
+@register_gaze_source(VisuomotorParams)
+class VisuomotorGaze:
+    """Gaze from simulated eye-hand coordination (see the module docstring for the model and
+    `VisuomotorParams` for its parameters)."""
 
     name = "visuomotor"
 
-    def __init__(
-        self,
-        lead_time_s: float = 1.0,
-        dwell_s: float = 0.05,
-        saccade_s: float = 0.04,
-        jitter: float = 0.008,
-        jitter_rho: float = 0.7,
-        blink_rate_hz: float = 0.0,
-        blink_s: float = 0.12,
-        missing_rate: float = 0.0,
-        sigma: float = 0.05,
-        arrive_radius: float = 0.03,
-        targets: tuple[str, ...] | list[str] | None = None,
-        fps: float | None = None,
-        seed: int = 0,
-    ):
-        for k, v in {
-            "lead_time_s": lead_time_s,
-            "dwell_s": dwell_s,
-            "saccade_s": saccade_s,
-            "jitter": jitter,
-            "blink_rate_hz": blink_rate_hz,
-            "blink_s": blink_s,
-            "arrive_radius": arrive_radius,
-        }.items():
-            if not v >= 0:
-                raise ValueError(f"{k} must be >= 0, got {v}")
-        if not 0 <= missing_rate <= 1 or not 0 <= jitter_rho < 1:
-            raise ValueError(
-                f"need 0 <= missing_rate <= 1 and 0 <= jitter_rho < 1, got {missing_rate}, {jitter_rho}"
-            )
-        if not sigma > 0:
-            raise ValueError(f"sigma must be > 0 (a fraction of the heatmap width), got {sigma}")
-        if fps is not None and not fps > 0:
-            raise ValueError(f"fps must be > 0, got {fps}")
-        self.lead_time_s, self.dwell_s, self.saccade_s = float(lead_time_s), float(dwell_s), float(saccade_s)
-        self.jitter, self.jitter_rho = float(jitter), float(jitter_rho)
-        self.blink_rate_hz, self.blink_s, self.missing_rate = (
-            float(blink_rate_hz),
-            float(blink_s),
-            float(missing_rate),
+    def __init__(self, params: VisuomotorParams = VisuomotorParams()):
+        p = params
+        self.params = params
+        self.lead_time_s, self.dwell_s, self.saccade_s = (
+            float(p.lead_time_s),
+            float(p.dwell_s),
+            float(p.saccade_s),
         )
-        self.sigma, self.arrive_radius = float(sigma), float(arrive_radius)
-        self.targets = tuple(targets) if targets is not None else None
-        self.fps = None if fps is None else float(fps)
-        self.seed = int(seed)
+        self.jitter, self.jitter_rho = float(p.jitter), float(p.jitter_rho)
+        self.blink_rate_hz, self.blink_s = float(p.blink_rate_hz), float(p.blink_s)
+        self.missing_rate = float(p.missing_rate)
+        self.sigma, self.arrive_radius = float(p.sigma), float(p.arrive_radius)
+        self.targets = tuple(p.targets) if p.targets is not None else None
+        self.fps = None if p.fps is None else float(p.fps)
+        self.seed = int(p.seed)
 
     def describe(self) -> dict[str, Any]:
         return {
@@ -252,8 +264,6 @@ class VisuomotorGaze:
         )
 
     def __call__(self, episode: Episode, camera: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-        from gazereg.gaze.heatmaps import heatmaps_from_points
-
         tr = self.trace(episode, camera)
         h, w = size
         heat, valid = heatmaps_from_points(tr.uv, (h, w), sigma=self.sigma * w, valid=tr.valid)

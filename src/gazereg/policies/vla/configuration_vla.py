@@ -1,28 +1,28 @@
 """Configuration of the reference VLA policy (frozen dataclasses, presets `tiny` and `paper`).
 
 A config has two kinds of fields: architecture choices (widths, depth, image and patch size, head) set by a
-preset, and data-dependent fields (cameras and their stored frame sizes, state/action dimensions, the
-tokenizer's vocabulary size) that `resolve()` fills in from the training data set. A resolved config fully
-determines the parameter shapes; it is stored as `config.json` beside `model.safetensors`.
+preset, and data-dependent fields (cameras and their stored frame sizes, state/action dimensions from
+`PolicyConfig`, the tokenizer's vocabulary size) that `VLAPolicy.from_data` fills in from the training data
+set. A resolved config fully determines the parameter shapes; it is stored as `config.json` beside
+`model.safetensors`. Registered as policy type "vla".
 """
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
+
+from gazereg.policies.base import PolicyConfig
 
 Head = Literal["l1", "flow"]
 Orientation = Literal["none", "rot180", "hflip", "vflip"]
 
 
 @dataclass(frozen=True)
-class VLAConfig:
-    # ----- vision ---------------------------------------------------------------------------------------
-    cameras: tuple[str, ...] = ()
-    """camera names the policy sees, in token order (empty: every camera of the store, sorted)"""
-    camera_hw: tuple[tuple[int, int], ...] = ()
-    """stored frame size (H, W) of each camera, aligned with `cameras` (filled from the data)"""
+class VLAConfig(PolicyConfig):
+    type: ClassVar[str] = "vla"
+
+    # ----- vision (cameras and camera_hw: PolicyConfig) ----------------------------------------------------
     image_hw: tuple[int, int] = (96, 96)
     """policy input size (H, W) every camera is resized (stretched) to"""
     patch_size: int = 12
@@ -44,9 +44,7 @@ class VLAConfig:
     heads: int = 4
     mlp_ratio: float = 2.0
     dropout: float = 0.0
-    # ----- proprioception and actions -------------------------------------------------------------------
-    state_dim: int = 0
-    action_dim: int = 0
+    # ----- actions (state_dim and action_dim: PolicyConfig) ---------------------------------------------
     chunk: int = 4
     """K: actions predicted per forward pass (the action query tokens)"""
     head: Head = "l1"
@@ -63,6 +61,7 @@ class VLAConfig:
 
     # ------------------------------------------------------------------------------------------------------
     def __post_init__(self) -> None:
+        super().__post_init__()
         H, W = self.image_hw
         if self.patch_size <= 0 or H % self.patch_size or W % self.patch_size:
             raise ValueError(f"image_hw {self.image_hw} is not divisible into {self.patch_size} px patches")
@@ -72,10 +71,8 @@ class VLAConfig:
             )
         if self.dim % self.heads:
             raise ValueError(f"dim {self.dim} must be divisible by heads {self.heads}")
-        if self.chunk < 1 or not 1 <= self.n_action_steps <= self.chunk:
+        if not 1 <= self.n_action_steps <= self.chunk:
             raise ValueError(f"need 1 <= n_action_steps ({self.n_action_steps}) <= chunk ({self.chunk})")
-        if self.camera_hw and len(self.camera_hw) != len(self.cameras):
-            raise ValueError(f"camera_hw {self.camera_hw} must align with cameras {self.cameras}")
         if self.head not in ("l1", "flow"):
             raise ValueError(f"unknown action head {self.head!r}; use 'l1' or 'flow'")
 
@@ -90,47 +87,10 @@ class VLAConfig:
 
     @property
     def resolved(self) -> bool:
-        return (
-            bool(self.cameras)
-            and len(self.camera_hw) == len(self.cameras)
-            and self.state_dim > 0
-            and self.action_dim > 0
-            and self.vocab_size > 0
-        )
+        return super().resolved and self.vocab_size > 0
 
-    def check_resolved(self) -> None:
-        if not self.resolved:
-            raise ValueError(
-                "the VLA config is not resolved: cameras, camera_hw, state_dim, action_dim and vocab_size come from the "
-                f"training data (call config.resolve(...)); got cameras={self.cameras}, camera_hw={self.camera_hw}, "
-                f"state_dim={self.state_dim}, action_dim={self.action_dim}, vocab_size={self.vocab_size}"
-            )
-
-    def resolve(self, **data_fields: Any) -> VLAConfig:
-        return dataclasses.replace(self, **data_fields)
-
-    def to_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        return {
-            k: ([list(x) if isinstance(x, tuple) else x for x in v] if isinstance(v, tuple) else v)
-            for k, v in d.items()
-        }
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> VLAConfig:
-        fields = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(d) - fields - {"type"})
-        if unknown:
-            raise ValueError(f"unknown VLA config field(s) {unknown}")
-        kw = {k: v for k, v in d.items() if k in fields}
-        for k in ("cameras",):
-            if k in kw:
-                kw[k] = tuple(kw[k])
-        if "camera_hw" in kw:
-            kw["camera_hw"] = tuple(tuple(x) for x in kw["camera_hw"])
-        if "image_hw" in kw:
-            kw["image_hw"] = tuple(kw["image_hw"])
-        return cls(**kw)
+    def data_fields(self) -> dict[str, Any]:
+        return {**super().data_fields(), "vocab_size": self.vocab_size}
 
 
 def tiny() -> VLAConfig:

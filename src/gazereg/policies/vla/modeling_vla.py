@@ -1,4 +1,6 @@
-"""The reference VLA policy (the paper's Figure 2, scaled to taste by `VLAConfig`).
+"""The reference VLA policy (the paper's Figure 2, scaled to taste by `VLAConfig`), a `Policy`
+(gazereg.policies.base) registered as "vla". Its blocks live in layers_vla, its input processing
+(tokenizer, normalisation, image resizing, augmentation) in processor_vla.
 
 Token sequence, one transformer over all of it (T = P + K tokens):
 
@@ -18,7 +20,7 @@ Token sequence, one transformer over all of it (T = P + K tokens):
 - Decoder: LayerNorm + Linear to the action dimension: normalised actions (L1 head, loss L1) or a velocity
   field (flow head, loss MSE to noise - action; Euler integration from t=1 to 0 at inference).
 
-Attention uses `F.scaled_dot_product_attention` and calls `gazereg.attention.tap(layer, q, k, mask)`: the
+Attention (layers_vla.Attention) uses `F.scaled_dot_product_attention` and calls `gazereg.attention.tap(layer, q, k, mask)`: the
 gaze regularizer reads the action queries' attention to one camera's patches through an `AttentionProbe`
 (`gaze_probe_spec`) without changing the forward. Inference (`select_action`) never sees gaze.
 
@@ -28,9 +30,8 @@ A action dim. Images enter as stored uint8 frames (B, H_img, W_img, 3).
 
 from __future__ import annotations
 
-import json
+import dataclasses
 import logging
-import math
 from collections import deque
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -38,150 +39,33 @@ from typing import Any
 
 import numpy as np
 import torch
-import torch.nn.functional as F
-from safetensors.torch import load_file, save_file
 from torch import Tensor, nn
 
-from gazereg.attention.probe import ProbeSpec, tap
+from gazereg.attention.probe import ProbeSpec
+from gazereg.data.dataset import StoreInfo
 from gazereg.patches import PatchGeometry
+from gazereg.policies.base import Policy
 from gazereg.policies.vla.configuration_vla import VLAConfig
-from gazereg.policies.vla.processor_vla import Tokenizer, random_shift, to_input_images
-from gazereg.runtime.io import atomic_dir
+from gazereg.policies.vla.layers_vla import Block, ConvStem, flow_time_embedding
+from gazereg.policies.vla.processor_vla import Normalizer, Tokenizer, random_shift, to_input_images
 
 log = logging.getLogger(__name__)
 
-MODEL_FILE, CONFIG_FILE, TOKENIZER_FILE = "model.safetensors", "config.json", "tokenizer.json"
 
-
-class Normalizer(nn.Module):
-    """Mean/std of state and action, kept with the policy (saved in model.safetensors as buffers)."""
-
-    def __init__(self, state_dim: int, action_dim: int, eps: float):
-        super().__init__()
-        self.eps = eps
-        self.register_buffer("state_mean", torch.zeros(state_dim))
-        self.register_buffer("state_std", torch.ones(state_dim))
-        self.register_buffer("action_mean", torch.zeros(action_dim))
-        self.register_buffer("action_std", torch.ones(action_dim))
-
-    @torch.no_grad()
-    def set_stats(self, state_mean: Any, state_std: Any, action_mean: Any, action_std: Any) -> None:
-        for name, v in (
-            ("state_mean", state_mean),
-            ("state_std", state_std),
-            ("action_mean", action_mean),
-            ("action_std", action_std),
-        ):
-            t = torch.as_tensor(np.asarray(v, dtype=np.float32))
-            buf = getattr(self, name)
-            if t.shape != buf.shape or not torch.isfinite(t).all():
-                raise ValueError(
-                    f"normalisation {name} must be a finite {tuple(buf.shape)} vector, got {tuple(t.shape)}"
-                )
-            if name.endswith("std"):
-                t = t.clamp_min(self.eps)
-            buf.copy_(t)
-
-    def state(self, x: Tensor) -> Tensor:
-        return (x - self.state_mean) / self.state_std
-
-    def action(self, x: Tensor) -> Tensor:
-        return (x - self.action_mean) / self.action_std
-
-    def unaction(self, x: Tensor) -> Tensor:
-        return x * self.action_std + self.action_mean
-
-    def stats(self) -> dict[str, list[float]]:
-        return {k: v.tolist() for k, v in self.state_dict().items()}
-
-
-class ConvStem(nn.Module):
-    """(B, 3, H, W) -> (B, N, D) patch tokens: stride-s patchify conv, 3x3 conv, stride-(p/s) conv."""
-
-    def __init__(self, cfg: VLAConfig):
-        super().__init__()
-        c, s = cfg.stem_channels, cfg.stem_stride
-        self.net = nn.Sequential(
-            nn.Conv2d(3, c, kernel_size=s, stride=s),
-            nn.GELU(),
-            nn.Conv2d(c, c, kernel_size=3, padding=1),
-            nn.GELU(),
-            nn.Conv2d(c, cfg.dim, kernel_size=cfg.patch_size // s, stride=cfg.patch_size // s),
-        )
-
-    def forward(self, x: Tensor) -> Tensor:
-        return self.net(x).flatten(2).transpose(1, 2)
-
-
-class Attention(nn.Module):
-    def __init__(self, dim: int, heads: int, layer: int, dropout: float):
-        super().__init__()
-        self.heads, self.layer, self.dropout = heads, layer, dropout
-        self.qkv = nn.Linear(dim, 3 * dim)
-        self.proj = nn.Linear(dim, dim)
-
-    def forward(
-        self, x: Tensor, mask: Tensor, output_attentions: bool = False
-    ) -> tuple[Tensor, Tensor | None]:
-        """x (B, T, D), mask (B, 1, T, T) bool (True = may attend) -> (B, T, D) [, probs (B, H, T, T)]."""
-        B, T, D = x.shape
-        q, k, v = (
-            self.qkv(x).reshape(B, T, 3, self.heads, D // self.heads).permute(2, 0, 3, 1, 4)
-        )  # (B, H, T, d)
-        tap(self.layer, q, k, mask)  # free unless an AttentionProbe is active
-        probs = None
-        p = self.dropout if self.training else 0.0
-        if output_attentions:  # eager path, materialises every probability (for inspection and benchmarks)
-            logits = (q @ k.transpose(-1, -2)) / math.sqrt(D // self.heads)
-            probs = torch.softmax(logits.masked_fill(~mask, float("-inf")), dim=-1)
-            y = F.dropout(probs, p) @ v
-        else:
-            y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask, dropout_p=p)
-        return self.proj(y.transpose(1, 2).reshape(B, T, D)), probs
-
-
-class Block(nn.Module):
-    def __init__(self, cfg: VLAConfig, layer: int):
-        super().__init__()
-        self.norm1 = nn.LayerNorm(cfg.dim)
-        self.attn = Attention(cfg.dim, cfg.heads, layer, cfg.dropout)
-        self.norm2 = nn.LayerNorm(cfg.dim)
-        hidden = int(cfg.dim * cfg.mlp_ratio)
-        self.mlp = nn.Sequential(
-            nn.Linear(cfg.dim, hidden), nn.GELU(), nn.Linear(hidden, cfg.dim), nn.Dropout(cfg.dropout)
-        )
-
-    def forward(
-        self, x: Tensor, mask: Tensor, output_attentions: bool = False
-    ) -> tuple[Tensor, Tensor | None]:
-        y, probs = self.attn(self.norm1(x), mask, output_attentions)
-        x = x + y
-        return x + self.mlp(self.norm2(x)), probs
-
-
-def flow_time_embedding(t: Tensor, dim: int) -> Tensor:
-    """Sinusoidal embedding of flow times t (B,) in [0, 1] -> (B, dim)."""
-    half = dim // 2
-    freqs = torch.exp(-math.log(1000.0) * torch.arange(half, device=t.device, dtype=torch.float32) / half)
-    ang = t.float()[:, None] * 1000.0 * freqs[None]
-    return torch.cat([ang.sin(), ang.cos()], -1)
-
-
-class VLAPolicy(nn.Module):
+class VLAPolicy(Policy):
     """The reference vision-language-action policy. See the module docstring for the architecture."""
 
-    name = "vla"
     config_class = VLAConfig
+    config: VLAConfig
+    tokenizer: Tokenizer
 
     def __init__(self, config: VLAConfig, tokenizer: Tokenizer):
-        super().__init__()
-        config.check_resolved()
+        super().__init__(config, tokenizer)
         if tokenizer.vocab_size != config.vocab_size or tokenizer.max_len != config.max_text_len:
             raise ValueError(
                 f"tokenizer (vocab {tokenizer.vocab_size}, max_len {tokenizer.max_len}) does not match the config "
                 f"(vocab_size {config.vocab_size}, max_text_len {config.max_text_len})"
             )
-        self.config, self.tokenizer = config, tokenizer
         D, N, K = config.dim, config.n_patches, config.chunk
         n_cams = len(config.cameras)
         self.normalizer = Normalizer(config.state_dim, config.action_dim, config.norm_eps)
@@ -212,6 +96,19 @@ class VLAPolicy(nn.Module):
             nn.init.trunc_normal_(m.weight, std=0.02)
             if getattr(m, "bias", None) is not None:
                 nn.init.zeros_(m.bias)
+
+    @classmethod
+    def from_data(cls, config: VLAConfig, data: StoreInfo) -> VLAPolicy:  # type: ignore[override]
+        """Tokenizer from the training instructions, config resolved from the data and the vocabulary."""
+        tok = Tokenizer.build(data.instructions, config.tokenizer, config.max_text_len)
+        return cls(dataclasses.replace(config.resolve(data), vocab_size=tok.vocab_size), tok)
+
+    @classmethod
+    def load_tokenizer(cls, path: Path) -> Tokenizer:
+        return Tokenizer.load(path)
+
+    def set_normalization(self, state_mean: Any, state_std: Any, action_mean: Any, action_std: Any) -> None:
+        self.normalizer.set_stats(state_mean, state_std, action_mean, action_std)
 
     # ----- geometry and the gaze probe ---------------------------------------------------------------------
     def camera_index(self, camera: str) -> int:
@@ -261,10 +158,6 @@ class VLAPolicy(nn.Module):
         )
 
     # ----- forward -----------------------------------------------------------------------------------------
-    @property
-    def device(self) -> torch.device:
-        return self.action_out.weight.device
-
     def attention_mask(self, text_mask: Tensor) -> Tensor:
         """Block mask (B, 1, T, T) bool, True = query (row) may attend to key (column)."""
         B, dev = text_mask.shape[0], text_mask.device
@@ -464,36 +357,3 @@ class VLAPolicy(nn.Module):
             self.train(was_training)
         out = action.float().cpu().numpy()
         return out if batched else out[0]
-
-    # ----- save / load -------------------------------------------------------------------------------------
-    def num_parameters(self) -> int:
-        return sum(p.numel() for p in self.parameters())
-
-    def write_pretrained(self, directory: str | Path, state_dict: Mapping[str, Tensor] | None = None) -> None:
-        """Write model.safetensors, config.json and tokenizer.json into an existing folder (not atomic)."""
-        d = Path(directory)
-        sd = {k: v.detach().contiguous().cpu() for k, v in (state_dict or self.state_dict()).items()}
-        save_file(sd, str(d / MODEL_FILE), metadata={"format": "pt", "policy": self.name})
-        (d / CONFIG_FILE).write_text(
-            json.dumps({"type": self.name, **self.config.to_dict()}, indent=2, sort_keys=True) + "\n"
-        )
-        (d / TOKENIZER_FILE).write_text(json.dumps(self.tokenizer.to_dict(), indent=1) + "\n")
-
-    def save_pretrained(self, directory: str | Path, state_dict: Mapping[str, Tensor] | None = None) -> Path:
-        """Atomically write the policy (weights, normalisation stats, config, tokenizer) to `directory`."""
-        with atomic_dir(directory) as tmp:
-            self.write_pretrained(tmp, state_dict)
-        return Path(directory)
-
-    @classmethod
-    def from_pretrained(cls, directory: str | Path, map_location: str | torch.device = "cpu") -> VLAPolicy:
-        d = Path(directory)
-        for f in (MODEL_FILE, CONFIG_FILE, TOKENIZER_FILE):
-            if not (d / f).exists():
-                raise FileNotFoundError(f"{d} is not a saved VLA policy: {f} is missing")
-        cfg_dict = json.loads((d / CONFIG_FILE).read_text())
-        if cfg_dict.get("type", cls.name) != cls.name:
-            raise ValueError(f"{d} holds a {cfg_dict.get('type')!r} policy, not {cls.name!r}")
-        policy = cls(VLAConfig.from_dict(cfg_dict), Tokenizer.load(d / TOKENIZER_FILE))
-        policy.load_state_dict(load_file(str(d / MODEL_FILE), device=str(map_location)))
-        return policy.to(map_location).eval()

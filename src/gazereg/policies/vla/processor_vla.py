@@ -1,4 +1,5 @@
-"""Input processing of the reference VLA: an offline tokenizer, image geometry and augmentation.
+"""Input processing of the reference VLA: an offline tokenizer, state/action normalisation, image geometry and
+augmentation.
 
 Nothing here downloads anything. The tokenizer is either a word vocabulary built from the training
 instructions (stored in the checkpoint as `tokenizer.json`) or UTF-8 bytes.
@@ -16,9 +17,12 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 import torch.nn.functional as F
-from torch import Tensor
+from torch import Tensor, nn
+
+from gazereg.runtime.io import atomic_write_text
 
 PAD, UNK = "<pad>", "<unk>"
 _WORD = re.compile(r"[a-z0-9]+")  # lower-cased words and numbers; punctuation is dropped
@@ -88,8 +92,6 @@ class Tokenizer:
         return cls(d["kind"], d.get("vocab"), d["max_len"])
 
     def save(self, path: str | Path) -> None:
-        from gazereg.runtime.io import atomic_write_text
-
         atomic_write_text(path, json.dumps(self.to_dict(), indent=1) + "\n")
 
     @classmethod
@@ -139,3 +141,45 @@ def random_shift(images: Tensor, pad: int, generator: torch.Generator) -> Tensor
     b = torch.arange(B, device=images.device)[:, None, None]
     out = padded.permute(0, 2, 3, 1)[b, rows[:, :, None], cols[:, None, :]]  # (B, H, W, C)
     return out.permute(0, 3, 1, 2).contiguous()
+
+
+class Normalizer(nn.Module):
+    """Mean/std of state and action, kept with the policy (saved in model.safetensors as buffers)."""
+
+    def __init__(self, state_dim: int, action_dim: int, eps: float):
+        super().__init__()
+        self.eps = eps
+        self.register_buffer("state_mean", torch.zeros(state_dim))
+        self.register_buffer("state_std", torch.ones(state_dim))
+        self.register_buffer("action_mean", torch.zeros(action_dim))
+        self.register_buffer("action_std", torch.ones(action_dim))
+
+    @torch.no_grad()
+    def set_stats(self, state_mean: Any, state_std: Any, action_mean: Any, action_std: Any) -> None:
+        for name, v in (
+            ("state_mean", state_mean),
+            ("state_std", state_std),
+            ("action_mean", action_mean),
+            ("action_std", action_std),
+        ):
+            t = torch.as_tensor(np.asarray(v, dtype=np.float32))
+            buf = getattr(self, name)
+            if t.shape != buf.shape or not torch.isfinite(t).all():
+                raise ValueError(
+                    f"normalisation {name} must be a finite {tuple(buf.shape)} vector, got {tuple(t.shape)}"
+                )
+            if name.endswith("std"):
+                t = t.clamp_min(self.eps)
+            buf.copy_(t)
+
+    def state(self, x: Tensor) -> Tensor:
+        return (x - self.state_mean) / self.state_std
+
+    def action(self, x: Tensor) -> Tensor:
+        return (x - self.action_mean) / self.action_std
+
+    def unaction(self, x: Tensor) -> Tensor:
+        return x * self.action_std + self.action_mean
+
+    def stats(self) -> dict[str, list[float]]:
+        return {k: v.tolist() for k, v in self.state_dict().items()}

@@ -43,9 +43,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from gazereg.data.errors import DataImportError
 from gazereg.data.formats.lerobot_v3.dataset import LeRobotV3Dataset
-from gazereg.data.importers import DataImportError, SourceEpisode, rotated_cameras, write_episodes
+from gazereg.data.imports import SourceEpisode, rotated_cameras, write_episodes
 from gazereg.data.store import Episode, EpisodeStore
+from gazereg.runtime.config import parse
 
 
 @dataclass(frozen=True)
@@ -126,8 +128,6 @@ def import_lerobot(cfg: LeRobotImportConfig) -> dict[str, Any]:
 
 
 def import_main(argv: list[str]) -> int:
-    from gazereg.runtime.config import parse
-
     cfg = parse(
         {"default": LeRobotImportConfig},
         argv,

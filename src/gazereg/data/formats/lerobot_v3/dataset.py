@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from gazereg.data.errors import DataImportError
 from gazereg.data.formats.lerobot_v3.frames import VideoFrames, read_images
 from gazereg.data.formats.lerobot_v3.metadata import (
     STANDARD_COLUMNS,
@@ -27,7 +28,7 @@ from gazereg.data.formats.lerobot_v3.metadata import (
     rgb_cameras,
     to_numpy,
 )
-from gazereg.data.importers import DataImportError, recorded_gaze
+from gazereg.data.imports import recorded_gaze
 from gazereg.data.store import Episode
 
 

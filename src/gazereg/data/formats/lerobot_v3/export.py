@@ -1,6 +1,7 @@
 """Gaze priors out to LeRobot: a store's priors as a sidecar next to a LeRobot v3.0 data set (pyarrow only).
 
-Export (`gazereg import export-priors --store STORE --prior NAME --out DIR`): `export_priors_lerobot` writes
+Export (`gazereg import export-priors --store STORE --prior NAME --out DIR`, gazereg.data.export):
+`export_priors_lerobot` writes
 DIR/priors.parquet (columns episode_index, frame_index, index int64; prior fixed_size_list<float32>[h*w],
 row-major (h, w), each valid row summing to 1; valid bool) and DIR/priors.json (format, the prior's info, shape,
 camera, frame convention, episodes). The suggested place is <lerobot root>/gaze_priors/<prior name>/, next to
@@ -19,8 +20,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
-from gazereg.data.importers import DataImportError, require_pyarrow
+from gazereg.data.errors import DataExportError
+from gazereg.data.formats.lerobot_v3.metadata import require_pyarrow
 from gazereg.data.store import EpisodeStore
 from gazereg.runtime.io import atomic_path, atomic_write_json
 
@@ -28,16 +31,117 @@ SIDECAR_FORMAT = "gazereg-priors-lerobot"
 SIDECAR_VERSION = 1
 
 
+def _export_plan(
+    store: EpisodeStore, prior_name: str, episode_map: dict[int, int] | None
+) -> list[tuple[int, int]]:
+    """`(episode_index, store index)` of every episode to export, sorted; refuses a map that is not one-to-one."""
+    todo = [
+        i
+        for i in store.indices()
+        if store.has_prior(prior_name, i) and (episode_map is None or i in episode_map)
+    ]
+    if not todo:
+        raise DataExportError(
+            f"store {store.root} has no {prior_name!r} priors to export"
+            + (" for the given episode map" if episode_map else "")
+        )
+    plan: list[tuple[int, int]] = []
+    for i in todo:
+        src = store.meta(i).get("source", {})
+        if episode_map is not None:
+            plan.append((episode_map[i], i))
+        elif src.get("format") == "lerobot_v3":
+            plan.append((int(src["episode_index"]), i))
+        else:
+            plan.append((i, i))
+    plan.sort()
+    dup = [e for (e, _), (e2, _) in zip(plan, plan[1:]) if e == e2]
+    if dup:
+        raise DataExportError(
+            f"several store episodes map to episode_index {dup[0]}; pass an episode map that is one-to-one"
+        )
+    return plan
+
+
 @dataclass(frozen=True)
-class ExportPriorsConfig:
-    store: Path = Path("data/demos")
-    """episode store holding the priors"""
-    prior: str = "recorded"
-    """prior name in the store (priors/<name>/)"""
-    out: Path = Path("gaze_priors")
-    """output folder for priors.parquet + priors.json (suggested: <lerobot root>/gaze_priors/<prior>)"""
-    episode_map: tuple[str, ...] = ()
-    """optional store_index=episode_index pairs; default: the episode_index recorded at import (else the store index)"""
+class _EpisodeRows:
+    """One episode's rows of the sidecar."""
+
+    table: Any
+    """pyarrow Table: episode_index, frame_index, index, prior (h*w floats), valid"""
+    shape: tuple[int, int]
+    """`(h, w)` of its maps"""
+    record: dict[str, Any]
+    """its entry in priors.json's episode list"""
+    next_index: int
+    """the global `index` after its last frame"""
+
+
+def _episode_rows(
+    pa: Any, store: EpisodeStore, prior_name: str, camera: str | None, e: int, i: int, running: int
+) -> _EpisodeRows:
+    """The rows of store episode `i` as data set episode `e` (`running`: the next global index when the
+    episode did not come from LeRobot); maps are turned back into the data set's frame where the import
+    turned them."""
+    heat, valid = store.read_prior(prior_name, i)
+    T, h, w = heat.shape
+    ep = store.read(i, cameras=[])
+    undo = (
+        ep.meta.get("source", {}).get("format") == "lerobot_v3"
+        and ep.meta.get("orientation_applied", {}).get(camera) == "rot180"
+    )
+    if undo:
+        heat = heat[:, ::-1, ::-1]
+    frame_index = np.asarray(ep.extras.get("lerobot.frame_index", np.arange(T)), np.int64)
+    default_index = np.arange(running, running + T, dtype=np.int64)
+    index = np.asarray(ep.extras.get("lerobot.index", default_index), np.int64)
+    flat = pa.FixedSizeListArray.from_arrays(
+        pa.array(np.ascontiguousarray(heat, np.float32).reshape(-1)), h * w
+    )
+    table = pa.table(
+        {
+            "episode_index": pa.array(np.full(T, e, np.int64)),
+            "frame_index": pa.array(frame_index),
+            "index": pa.array(index),
+            "prior": flat,
+            "valid": pa.array(np.asarray(valid, bool)),
+        }
+    )
+    record = {"episode_index": e, "store_index": i, "length": T, "rotation_undone": undo}
+    return _EpisodeRows(table, (h, w), record, int(index.max()) + 1)
+
+
+def _sidecar_info(
+    store: EpisodeStore,
+    prior_name: str,
+    info: dict[str, Any],
+    shape: tuple[int, int],
+    episodes: list[dict[str, Any]],
+) -> dict[str, Any]:
+    """The content of priors.json."""
+    return {
+        "format": SIDECAR_FORMAT,
+        "version": SIDECAR_VERSION,
+        "prior_name": prior_name,
+        "prior_info": info,
+        "camera": info.get("camera"),
+        "shape": list(shape),
+        "dtype": "float32",
+        "columns": {
+            "episode_index": "int64",
+            "frame_index": "int64",
+            "index": "int64",
+            "prior": f"fixed_size_list<float32>[{shape[0] * shape[1]}]",
+            "valid": "bool",
+        },
+        "layout": "prior is a row-major (h, w) map flattened; rows with valid=true sum to 1; invalid rows are zero",
+        "frame": "u right, v down; LeRobot-imported episodes in the data set's own frames (rotation_undone "
+        "tells where a turn applied at import was undone), other episodes in the store's upright frames",
+        "num_frames": sum(e["length"] for e in episodes),
+        "num_episodes": len(episodes),
+        "episodes": episodes,
+        "store": str(store.root),
+    }
 
 
 def export_priors_lerobot(
@@ -60,119 +164,33 @@ def export_priors_lerobot(
     pa, pq = require_pyarrow()
     store = store if isinstance(store, EpisodeStore) else EpisodeStore(store)
     info = store.prior_info(prior_name)
-    camera = info.get("camera")
-    todo = [
-        i
-        for i in store.indices()
-        if store.has_prior(prior_name, i) and (episode_map is None or i in episode_map)
-    ]
-    if not todo:
-        raise DataImportError(
-            f"store {store.root} has no {prior_name!r} priors to export"
-            + (" for the given episode map" if episode_map else "")
-        )
-    plan: list[tuple[int, int]] = []  # (episode_index, store index)
-    for i in todo:
-        src = store.meta(i).get("source", {})
-        e = (
-            episode_map[i]
-            if episode_map is not None
-            else int(src["episode_index"])
-            if src.get("format") == "lerobot_v3"
-            else i
-        )
-        plan.append((e, i))
-    plan.sort()
-    dup = [e for (e, _), (e2, _) in zip(plan, plan[1:]) if e == e2]
-    if dup:
-        raise DataImportError(
-            f"several store episodes map to episode_index {dup[0]}; pass an episode map that is one-to-one"
-        )
+    plan = _export_plan(store, prior_name, episode_map)
     out_dir = Path(out_path)
-    parquet_path, json_path = out_dir / "priors.parquet", out_dir / "priors.json"
+    parquet_path = out_dir / "priors.parquet"
     shape: tuple[int, int] | None = None
-    n_frames, running, episodes = 0, 0, []
-    writer = None
-    from tqdm import tqdm
-
+    running, episodes, writer = 0, [], None
     with atomic_path(parquet_path) as tmp:
         try:
             for e, i in tqdm(
                 plan, desc=f"export {prior_name}", unit="ep", disable=not progress, file=sys.stderr
             ):
-                heat, valid = store.read_prior(prior_name, i)
-                T, h, w = heat.shape
-                if shape is None:
-                    shape = (h, w)
-                elif shape != (h, w):
-                    raise DataImportError(
-                        f"priors {prior_name!r}: episode {i} has {h}x{w} maps, others {shape[0]}x{shape[1]}"
+                rows = _episode_rows(pa, store, prior_name, info.get("camera"), e, i, running)
+                if shape is not None and rows.shape != shape:
+                    raise DataExportError(
+                        f"priors {prior_name!r}: episode {i} has {rows.shape[0]}x{rows.shape[1]} maps, "
+                        f"others {shape[0]}x{shape[1]}"
                     )
-                ep = store.read(i, cameras=[])
-                undo = (
-                    ep.meta.get("source", {}).get("format") == "lerobot_v3"
-                    and ep.meta.get("orientation_applied", {}).get(camera) == "rot180"
-                )
-                if undo:
-                    heat = heat[:, ::-1, ::-1]
-                frame_index = (
-                    np.asarray(ep.extras["lerobot.frame_index"], np.int64)
-                    if "lerobot.frame_index" in ep.extras
-                    else np.arange(T, dtype=np.int64)
-                )
-                index = (
-                    np.asarray(ep.extras["lerobot.index"], np.int64)
-                    if "lerobot.index" in ep.extras
-                    else np.arange(running, running + T, dtype=np.int64)
-                )
-                running = int(index.max()) + 1
-                flat = pa.FixedSizeListArray.from_arrays(
-                    pa.array(np.ascontiguousarray(heat, np.float32).reshape(-1)), h * w
-                )
-                batch = pa.table(
-                    {
-                        "episode_index": pa.array(np.full(T, e, np.int64)),
-                        "frame_index": pa.array(frame_index),
-                        "index": pa.array(index),
-                        "prior": flat,
-                        "valid": pa.array(np.asarray(valid, bool)),
-                    }
-                )
+                shape = rows.shape
                 if writer is None:
-                    writer = pq.ParquetWriter(tmp, batch.schema, compression="zstd")
-                writer.write_table(batch)
-                n_frames += T
-                episodes.append({"episode_index": e, "store_index": i, "length": T, "rotation_undone": undo})
+                    writer = pq.ParquetWriter(tmp, rows.table.schema, compression="zstd")
+                writer.write_table(rows.table)
+                running = rows.next_index
+                episodes.append(rows.record)
         finally:
             if writer is not None:
                 writer.close()
-    assert shape is not None
-    atomic_write_json(
-        json_path,
-        {
-            "format": SIDECAR_FORMAT,
-            "version": SIDECAR_VERSION,
-            "prior_name": prior_name,
-            "prior_info": info,
-            "camera": camera,
-            "shape": list(shape),
-            "dtype": "float32",
-            "columns": {
-                "episode_index": "int64",
-                "frame_index": "int64",
-                "index": "int64",
-                "prior": f"fixed_size_list<float32>[{shape[0] * shape[1]}]",
-                "valid": "bool",
-            },
-            "layout": "prior is a row-major (h, w) map flattened; rows with valid=true sum to 1; invalid rows are zero",
-            "frame": "u right, v down; LeRobot-imported episodes in the data set's own frames (rotation_undone "
-            "tells where a turn applied at import was undone), other episodes in the store's upright frames",
-            "num_frames": n_frames,
-            "num_episodes": len(episodes),
-            "episodes": episodes,
-            "store": str(store.root),
-        },
-    )
+    assert shape is not None  # the plan is never empty
+    atomic_write_json(out_dir / "priors.json", _sidecar_info(store, prior_name, info, shape, episodes))
     return parquet_path
 
 
@@ -209,7 +227,7 @@ def read_priors_lerobot(path: str | Path) -> LeRobotPriors:
         raise FileNotFoundError(f"{folder} is not a priors sidecar (needs priors.json and priors.parquet)")
     info = json.loads(info_path.read_text())
     if info.get("format") != SIDECAR_FORMAT:
-        raise DataImportError(f"{info_path}: not a {SIDECAR_FORMAT} file (format={info.get('format')!r})")
+        raise DataExportError(f"{info_path}: not a {SIDECAR_FORMAT} file (format={info.get('format')!r})")
     h, w = info["shape"]
     t = pq.read_table(parquet_path)
     prior = t.column("prior").combine_chunks()
@@ -222,25 +240,3 @@ def read_priors_lerobot(path: str | Path) -> LeRobotPriors:
         priors=priors,
         valid=t.column("valid").to_numpy(zero_copy_only=False).astype(bool),
     )
-
-
-def export_main(argv: list[str]) -> int:
-    from gazereg.runtime.config import parse
-
-    cfg = parse(
-        {"default": ExportPriorsConfig},
-        argv,
-        prog="gazereg import export-priors",
-        description="Export a store's gaze priors as a LeRobot sidecar (priors.parquet + priors.json).",
-    )
-    mapping = None
-    if cfg.episode_map:
-        try:
-            mapping = {int(a): int(b) for a, b in (p.split("=", 1) for p in cfg.episode_map)}
-        except ValueError as e:
-            raise DataImportError(
-                f"--episode-map entries must be store_index=episode_index, got {cfg.episode_map}"
-            ) from e
-    path = export_priors_lerobot(cfg.store, cfg.prior, cfg.out, mapping, progress=True)
-    print(json.dumps({"parquet": str(path), "info": str(path.with_suffix(".json"))}))
-    return 0

@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
+from gazereg.data.errors import DataImportError
 from gazereg.data.formats.lerobot_v3.metadata import DEFAULT_VIDEO_PATH, EpisodeMeta, camera_name
 from gazereg.data.formats.video import DecodeError, VideoFile, decode_image
-from gazereg.data.importers import DataImportError
 
 
 class VideoFrames:

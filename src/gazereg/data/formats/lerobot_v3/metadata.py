@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from gazereg.data.importers import DataImportError, require_pyarrow
+from gazereg.data.errors import DataImportError
 
 log = logging.getLogger(__name__)
 
@@ -26,6 +26,18 @@ STANDARD_COLUMNS = ("timestamp", "frame_index", "episode_index", "index", "task_
 """Per-frame columns every LeRobot v3 data file has."""
 
 DEFAULT_VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+
+
+def require_pyarrow() -> tuple[Any, Any]:
+    """The pyarrow and pyarrow.parquet modules, or an ImportError that says how to install them."""
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ImportError as e:  # pragma: no cover - the `data` extra declares it
+        raise ImportError(
+            "LeRobot import/export needs pyarrow: pip install 'gazereg[data]' (or pip install pyarrow)"
+        ) from e
+    return pa, pq
 
 
 def camera_name(key: str) -> str:

@@ -1,23 +1,15 @@
-"""`gazereg import`: demonstrations from other formats into an episode store, and priors back out.
+"""Importing demonstrations from other formats into an episode store: the machinery every importer shares.
 
-    gazereg import lerobot --root PATH --out STORE [--gaze-camera front] [--cameras front wrist]
-    gazereg import hdf5 --file PATH [PATH ...] --out STORE [--rotate180 auto|none|all|cam1,cam2]
-    gazereg import export-priors --store STORE --prior NAME --out DIR
-
-`lerobot` reads a LeRobot v3.0 data set (gazereg.data.formats.lerobot_v3), `hdf5` a LIBERO / robomimic HDF5 file
-(gazereg.data.formats.hdf5), `export-priors` writes a store's priors as a LeRobot sidecar keyed by episode_index and
-frame_index (DIR/priors.parquet + DIR/priors.json; see `export_priors_lerobot` in gazereg.data.formats.lerobot_v3.export).
-Run a subcommand with --help for its options.
-
-Imports stream one episode at a time and resume: the store index of an episode is fixed by its source
-(LeRobot episode_index; HDF5 demo number), episodes already in the store are skipped after checking that they
-came from the same source with the same settings, and every episode is written atomically, so an error or a
-kill mid-episode leaves no partial episode behind.
+An importer (gazereg.data.formats.lerobot_v3, gazereg.data.formats.hdf5) lists its episodes as
+`SourceEpisode`s, and `write_episodes` streams them into the store one at a time and resumes: the store
+index of an episode is fixed by its source (LeRobot episode_index; HDF5 demo number), episodes already in
+the store are skipped after checking that they came from the same source with the same settings, and every
+episode is written atomically, so an error or a kill mid-episode leaves no partial episode behind.
+`rotated_cameras` reads the importers' `rotate180` option, `recorded_gaze` a recorded gaze column.
 """
 
 from __future__ import annotations
 
-import logging
 import sys
 import time
 from collections.abc import Callable, Iterable
@@ -27,16 +19,8 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from gazereg.data.errors import DataImportError
 from gazereg.data.store import Episode, EpisodeStore
-from gazereg.runtime.subcommands import Entry, Subcommands, run_entry
-
-log = logging.getLogger(__name__)
-
-
-class DataImportError(ValueError):
-    """A source file is corrupt, inconsistent or not what the importer was asked to read.
-
-    The message names the file and the episode."""
 
 
 @dataclass
@@ -82,18 +66,6 @@ def recorded_gaze(points: np.ndarray, what: str, rotate180: bool = False) -> tup
     if rotate180:
         uv = 1.0 - uv
     return uv, valid
-
-
-def require_pyarrow() -> tuple[Any, Any]:
-    """The pyarrow and pyarrow.parquet modules, or an ImportError that says how to install them."""
-    try:
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-    except ImportError as e:  # pragma: no cover - the `data` extra declares it
-        raise ImportError(
-            "LeRobot import/export needs pyarrow: pip install 'gazereg[data]' (or pip install pyarrow)"
-        ) from e
-    return pa, pq
 
 
 def _same_source(stored: dict[str, Any], identity: dict[str, Any]) -> bool:
@@ -152,43 +124,3 @@ def write_episodes(
         "seconds": seconds,
         "frames_per_s": frames / max(seconds, 1e-9),
     }
-
-
-COMMANDS = Subcommands(
-    prog="gazereg import",
-    synopsis="<lerobot|hdf5|export-priors> [options]",
-    commands={
-        "lerobot": (
-            "gazereg.data.formats.lerobot_v3:import_main",
-            "import a LeRobot v3.0 data set (parquet + MP4) into an episode store",
-        ),
-        "hdf5": (
-            "gazereg.data.formats.hdf5:import_main",
-            "import LIBERO / robomimic HDF5 demonstrations into an episode store",
-        ),
-        "export-priors": (
-            "gazereg.data.formats.lerobot_v3.export:export_main",
-            "export a store's gaze priors as a LeRobot sidecar (parquet + JSON)",
-        ),
-    },
-    footer=(__doc__ or "").split("\n\n")[1],
-    noun="source",
-)
-
-
-def _run(name: str, entry: Entry, argv: list[str]) -> int:
-    """Run an import subcommand; a bad or missing source file is exit status 1 with the error on stderr."""
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        return run_entry(name, entry, argv)
-    except (DataImportError, FileNotFoundError) as e:
-        print(f"gazereg import {name}: error: {e}", file=sys.stderr)
-        return 1
-
-
-def main(argv: list[str] | None = None) -> int:
-    return COMMANDS.main(argv, run=_run)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,5 +1,6 @@
-"""Tiny random transformers models and batches for tests, examples and benchmarks (built from configs alone,
-no hub access). Sizes are (image 32 px, 8 px patches) unless given; every builder is seeded.
+"""Tiny random transformers models and batches for the integration tests and benchmarks/bench_integrations.py
+(built from configs alone, no hub access). Sizes are (image 32 px, 8 px patches) unless given; every builder is
+seeded. transformers is imported on first use, so importing this module does not need it.
 
     model = tiny_model("pi0", n_layers=2)
     batch = tiny_batch(model, batch=2, n_cameras=2)   # the keyword arguments of model(**batch)
@@ -11,6 +12,8 @@ from typing import Any
 
 import torch
 from torch import Tensor, nn
+
+from gazereg.integrations.transformers import detect_family
 
 FAMILY_NAMES = ("pi0", "paligemma", "idefics3", "smolvlm", "llava")
 IMAGE_TOKEN_ID = 299
@@ -132,8 +135,6 @@ def tiny_batch(
     (one block per camera, in camera order, after a BOS-like token) followed by `text` tokens, and the
     training targets (PI0: actions, fixed noise and timestep; VLMs: labels on the second half of the text,
     PaliGemma's token_type_ids marking that half as the suffix)."""
-    from gazereg.integrations.transformers import detect_family
-
     g = torch.Generator().manual_seed(seed)
     fam = detect_family(model)
     size, _, _ = fam.vision(model)

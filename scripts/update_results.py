@@ -1,0 +1,112 @@
+"""Write experiment results into docs/results.md (the block between a marker pair) and the README's headline.
+
+    python scripts/update_results.py runs/quick                                  # block quick-results
+    python scripts/update_results.py runs/paper --marker paper-results           # and the README's headline
+    python scripts/update_results.py runs/paper6k --against runs/paper --marker paper-budget
+        (run B = runs/paper6k compared with run A = runs/paper on the setups both evaluated)
+    python scripts/update_results.py --headline                                  # only the README's headline
+
+A run's block is `gazereg.report.results_block` of its report.json, with the run's attention figure copied to
+docs/figures/<marker>-attention.png; a comparison's block is `gazereg.report.compare.compare_markdown`. The
+README's headline block is the head of docs/results.md's paper-results block (its run line and success table,
+`gazereg.report.headline_lines`), copied from there so that the two pages never disagree. Blocks are
+delimited by `<!-- NAME:start -->` and `<!-- NAME:end -->` lines; everything outside them is left as it is.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from pathlib import Path
+
+from gazereg.report import results_block
+from gazereg.report.compare import compare_markdown, compare_runs
+from gazereg.runtime.io import atomic_write_text
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS_PAGE = Path("docs") / "results.md"  # relative to the repository root, like the two below
+FIGURES = Path("docs") / "figures"
+README = Path("README.md")
+HEADLINE_SOURCE = "paper-results"  # the docs/results.md block whose head is the README's headline
+HEADLINE = "headline"  # the README's block
+
+
+def _split(text: str, marker: str, where: Path) -> tuple[str, str, str]:
+    """(text before the block's start line, the block, text from its end line on)."""
+    start, end = f"<!-- {marker}:start -->", f"<!-- {marker}:end -->"
+    if start not in text or end not in text:
+        raise ValueError(f"{where} has no {start} ... {end} block")
+    head, rest = text.split(start, 1)
+    block, tail = rest.split(end, 1)
+    return f"{head}{start}\n", block.removeprefix("\n"), f"{end}{tail}"
+
+
+def read_block(page: Path, marker: str) -> str:
+    """The text between `page`'s `<!-- {marker}:start -->` and `<!-- {marker}:end -->` lines."""
+    return _split(page.read_text(), marker, page)[1]
+
+
+def replace_block(page: Path, marker: str, block: str) -> None:
+    """Replace the text between `page`'s marker lines with `block` (which ends with a newline); atomic."""
+    head, _, tail = _split(page.read_text(), marker, page)
+    atomic_write_text(page, f"{head}{block}{tail}")
+
+
+def headline_of(block: str) -> str:
+    """The head of a results block: its lines up to the end of its first table (the run line and the success
+    table that `headline_lines` renders), then one blank line, so that the table ends before the end marker."""
+    lines = block.splitlines()
+    first = next((i for i, line in enumerate(lines) if line.startswith("|")), None)
+    if first is None:
+        raise ValueError("the results block has no table")
+    stop = next((i for i in range(first, len(lines)) if not lines[i].startswith("|")), len(lines))
+    return "\n".join(lines[:stop]) + "\n\n"
+
+
+def run_block(root: Path, run_dir: Path, marker: str) -> str:
+    """The results block of the experiment in `run_dir`, its attention figure copied beside docs/results.md."""
+    report = json.loads((run_dir / "report.json").read_text())
+    figure = FIGURES / f"{marker}-attention.png"
+    (root / FIGURES).mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(run_dir / report["figures"]["attention"], root / figure)
+    return results_block(report, figure.relative_to(RESULTS_PAGE.parent).as_posix())
+
+
+def update_headline(root: Path) -> None:
+    """Copy the head of docs/results.md's paper-results block into the README's headline block."""
+    replace_block(root / README, HEADLINE, headline_of(read_block(root / RESULTS_PAGE, HEADLINE_SOURCE)))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("run_dir", type=Path, nargs="?", help="the experiment's output folder (its --out)")
+    ap.add_argument("--marker", default="quick-results", help="the docs/results.md block to replace")
+    ap.add_argument(
+        "--against", type=Path, help="write the comparison of run_dir (B) with this run (A) instead"
+    )
+    ap.add_argument(
+        "--headline", action="store_true", help="only copy the README's headline from docs/results.md"
+    )
+    ap.add_argument("--root", type=Path, default=ROOT, help="the repository to update (default: this one)")
+    args = ap.parse_args(argv)
+    if args.headline:
+        update_headline(args.root)
+        print(f"README.md block {HEADLINE!r} updated from {RESULTS_PAGE} block {HEADLINE_SOURCE!r}")
+        return 0
+    if args.run_dir is None:
+        ap.error("run_dir is needed unless --headline is given")
+    if args.against:
+        block = compare_markdown(compare_runs(args.against, args.run_dir), level=4)
+    else:
+        block = run_block(args.root, args.run_dir, args.marker)
+    replace_block(args.root / RESULTS_PAGE, args.marker, block)
+    print(f"{RESULTS_PAGE} block {args.marker!r} updated from {args.run_dir}")
+    if args.marker == HEADLINE_SOURCE:
+        update_headline(args.root)
+        print(f"README.md block {HEADLINE!r} updated from it")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

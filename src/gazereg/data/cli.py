@@ -1,0 +1,62 @@
+"""`gazereg import`: demonstrations from other formats into an episode store, and priors back out.
+
+    gazereg import lerobot --root PATH --out STORE [--gaze-camera front] [--cameras front wrist]
+    gazereg import hdf5 --file PATH [PATH ...] --out STORE [--rotate180 auto|none|all|cam1,cam2]
+    gazereg import export-priors --store STORE --prior NAME --out DIR
+
+`lerobot` reads a LeRobot v3.0 data set (gazereg.data.formats.lerobot_v3), `hdf5` a LIBERO / robomimic HDF5 file
+(gazereg.data.formats.hdf5), `export-priors` writes a store's priors as a LeRobot sidecar keyed by episode_index and
+frame_index (DIR/priors.parquet + DIR/priors.json; see gazereg.data.export).
+Run a subcommand with --help for its options.
+
+Imports stream one episode at a time and resume (gazereg.data.imports): episodes already in the store are skipped
+after checking that they came from the same source with the same settings, and every episode is written
+atomically.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+
+from gazereg.data.errors import DataExportError, DataImportError
+from gazereg.runtime.subcommands import Entry, Subcommands, run_entry
+
+COMMANDS = Subcommands(
+    prog="gazereg import",
+    synopsis="<lerobot|hdf5|export-priors> [options]",
+    commands={
+        "lerobot": (
+            "gazereg.data.formats.lerobot_v3:import_main",
+            "import a LeRobot v3.0 data set (parquet + MP4) into an episode store",
+        ),
+        "hdf5": (
+            "gazereg.data.formats.hdf5:import_main",
+            "import LIBERO / robomimic HDF5 demonstrations into an episode store",
+        ),
+        "export-priors": (
+            "gazereg.data.export:main",
+            "export a store's gaze priors as a LeRobot sidecar (parquet + JSON)",
+        ),
+    },
+    footer=(__doc__ or "").split("\n\n")[1],
+    noun="source",
+)
+
+
+def _run(name: str, entry: Entry, argv: list[str]) -> int:
+    """Run a subcommand; a bad or missing source file is exit status 1 with the error on stderr."""
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return run_entry(name, entry, argv)
+    except (DataImportError, DataExportError, FileNotFoundError) as e:
+        print(f"gazereg import {name}: error: {e}", file=sys.stderr)
+        return 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    return COMMANDS.main(argv, run=_run)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

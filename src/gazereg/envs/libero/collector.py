@@ -1,0 +1,114 @@
+"""LIBERO-Spatial demonstrations: `SpatialExpert` rolled out into episodes (`gazereg collect --env libero`).
+
+    ep, summary = rollout_libero_expert(env, seed=3)    # on setup 3 of a LiberoEnv (one task or a suite)
+
+The episode's task is LIBERO's task name (as `gazereg import hdf5` names LIBERO's demonstrations); its meta:
+seed, setup (suite, task index, initial state), success, fps, env, env_name, steps, expert, the expert's grasp,
+action_noise, the task's roles, camera geometry (MuJoCo's, with `mirror_u`: the stored images are its view
+mirrored left-right), state and action layouts, package versions. Importing this module does not import LIBERO.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from gazereg.data.store import Episode
+from gazereg.envs.libero.env import ACTION_LAYOUT, STATE_LAYOUT, LiberoEnv
+from gazereg.envs.libero.expert import SpatialExpert
+from gazereg.envs.libero.setup import import_libero, libero_available, resolve_task, suite_benchmark
+from gazereg.envs.recording import noise_seed, record_rollout, summary_of, versions
+
+
+def rollout_libero_expert(
+    env: LiberoEnv,
+    seed: int,
+    action_noise: float = 0.0,
+    max_steps: int | None = None,
+    expert: SpatialExpert | None = None,
+) -> tuple[Episode, dict[str, Any]]:
+    """Roll the spatial expert out on setup `seed` of `env`.
+
+    Returns the Episode (also when it failed: meta["success"] says) and the summary `gazereg collect` logs."""
+    expert = expert or SpatialExpert(noise=action_noise)
+    started = False
+
+    def act(obs: dict[str, Any], info: dict[str, Any]) -> np.ndarray:
+        nonlocal started
+        if not started:  # the env has just been reset by record_rollout
+            expert.reset(env, noise_seed(env.task, seed))
+            started = True
+        return expert(env)
+
+    rec = record_rollout(env, act, seed, max_steps or env.max_steps)
+    t, k = env.setup_of(seed)
+    meta = {
+        "seed": int(seed),
+        "setup": {"benchmark": "libero", "suite": env.suite, "task_index": t, "init_state": k},
+        "success": bool(rec.success),
+        "fps": float(env.fps),
+        "env": "libero",
+        "env_name": env.task,
+        "steps": rec.length,
+        "expert": expert.name,
+        "expert_grasp": dict(expert.grasp_choice),
+        "action_noise": float(action_noise),
+        "roles": {"obj": env.roles.obj, "goal": env.roles.goal, "relation": env.roles.relation},
+        # MuJoCo's geometry of each camera; the stored images are its view mirrored left-right (LIBERO's turn).
+        "camera_geometry": {c: {**env.camera_geometry(c).to_dict(), "mirror_u": True} for c in env.cameras},
+        "state_layout": list(STATE_LAYOUT),
+        "action_layout": list(ACTION_LAYOUT),
+        "versions": versions(("hf-libero", "robosuite", "mujoco", "gazereg")),
+    }
+    return rec.episode(env.task_names[t], env.instruction, meta), summary_of(env.task, seed, rec)
+
+
+class LiberoCollector:
+    """`gazereg collect --env libero`: LIBERO-Spatial tasks rolled out by `SpatialExpert`.
+
+    Tasks: `libero_spatial` (its 10 tasks), `libero_spatial/3`, `libero_spatial/<task name>`; canonical form
+    `libero_spatial/<index>`. Seed s is the task's fixed initial state s % 50."""
+
+    name = "libero"
+    default_cameras = ("agentview_rgb", "eye_in_hand_rgb")  # the names `gazereg import hdf5` gives them
+    default_max_steps = 220  # LIBERO-Spatial's evaluation length
+    max_steps_limit = 10_000
+    suites = ("libero_spatial",)
+
+    def tasks(self, requested: Sequence[str]) -> tuple[str, ...]:
+        """Canonical task specs (suites expanded); ValueError/KeyError for unknown or unsupported ones."""
+        ok, why = libero_available()
+        if not ok:
+            raise ValueError(f"--env libero: {why}")
+        import_libero(None)
+        out: list[str] = []
+        for spec in requested:
+            suite, index = resolve_task(spec)
+            if suite not in self.suites:
+                raise ValueError(
+                    f"{spec!r}: the scripted LIBERO expert covers {', '.join(self.suites)} only "
+                    "(pick-and-place of a bowl onto the plate)"
+                )
+            n = len(suite_benchmark(suite).get_task_names())
+            out += [f"{suite}/{i}" for i in (range(n) if index is None else [index])]
+        return tuple(out)
+
+    def episode_task(self, task: str) -> str:
+        suite, index = resolve_task(task)
+        return str(suite_benchmark(suite).get_task_names()[index])
+
+    def make_env(self, task: str, cfg: Any) -> LiberoEnv:
+        return LiberoEnv(
+            task,
+            cameras=cfg.cameras,
+            image_size=cfg.image_size,
+            max_steps=cfg.max_steps,
+            gl_backend=cfg.gl_backend or None,
+        )
+
+    def rollout(
+        self, env: LiberoEnv, seed: int, action_noise: float, max_steps: int
+    ) -> tuple[Episode, dict[str, Any]]:
+        return rollout_libero_expert(env, seed, action_noise=action_noise, max_steps=max_steps)

@@ -1,0 +1,91 @@
+"""What `gazereg eval` runs: `EvalConfig`, its presets, the robustness sweep and the checkpoints to compare.
+
+cfg = presets()["quick"]()                       # 10 episodes per task: clean, dim:0.7, gaussian_noise:0.5
+arms = parse_checkpoints(("baseline=runs/a/final", "runs/b/final"))   # {"baseline": ..., "final": ...}
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+# The full robustness sweep: each lighting perturbation and several sensor-noise levels.
+ROBUSTNESS_CONDITIONS = (
+    "clean",
+    "dim:0.7",
+    "bright:0.7",
+    "tint:1",
+    "light_direction:1",
+    "gaussian_noise:0.3",
+    "gaussian_noise:0.6",
+    "salt_pepper:0.5",
+)
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    checkpoints: tuple[str, ...] = ()
+    """policies to evaluate: NAME=DIR or DIR (named after the folder)"""
+    tasks: tuple[str, ...] = ("reach-v3",)
+    episodes: int = 10
+    """episodes per task and condition (setup seeds seed_start .. seed_start + episodes - 1)"""
+    seed_start: int = 1000
+    conditions: tuple[str, ...] = ("clean",)
+    """perturbation specs, e.g. clean, dim:0.7, tint:1, gaussian_noise:0.5, salt_pepper:0.5, dim:0.5+gaussian_noise:0.3"""
+    max_steps: int = 150
+    workers: int = 2
+    """worker processes (one per core); 1 runs in this process"""
+    videos: int = 1
+    """episodes per (arm, task, condition) saved as GIFs with the attention overlay (0: none)"""
+    out: Path = Path("runs/eval")
+    gl_backend: str | None = None
+    """MuJoCo OpenGL backend (egl | osmesa | glfw); None: respect MUJOCO_GL, else egl, else osmesa"""
+    env: Literal["metaworld", "libero"] = "metaworld"
+    """simulator: metaworld (tasks are Meta-World task names) or libero (tasks are suites such as
+    libero_spatial or single tasks such as libero_spatial/3; needs the LIBERO extra: scripts/libero_env.sh)"""
+
+
+def presets() -> dict[str, Callable[[], EvalConfig]]:
+    return {
+        "default": EvalConfig,
+        "smoke": lambda: EvalConfig(
+            episodes=2, max_steps=20, workers=1, videos=1, conditions=("clean", "dim:0.7")
+        ),
+        "quick": lambda: EvalConfig(episodes=10, conditions=("clean", "dim:0.7", "gaussian_noise:0.5")),
+        # LIBERO-Spatial task by task on initial states 25..49, leaving 0..24 to `gazereg collect --env libero`.
+        "libero": lambda: EvalConfig(
+            env="libero",
+            tasks=tuple(f"libero_spatial/{k}" for k in range(10)),
+            episodes=25,
+            seed_start=25,
+            max_steps=220,
+            workers=os.cpu_count() or 2,
+        ),
+        "paper": lambda: EvalConfig(
+            episodes=50,
+            max_steps=200,
+            workers=os.cpu_count() or 2,
+            conditions=ROBUSTNESS_CONDITIONS,
+        ),
+    }
+
+
+def parse_checkpoints(items: Sequence[str]) -> dict[str, Path]:
+    """NAME=DIR or DIR (named after the folder) -> {name: folder}; errors for duplicates, folders that are not
+    saved policies (no config.json) and an empty list."""
+    arms: dict[str, Path] = {}
+    for item in items:
+        name, _, path = item.rpartition("=") if "=" in item else (Path(item).name, "", item)
+        if name in arms:
+            raise ValueError(f"two checkpoints named {name!r}; name them NAME=DIR")
+        if not (Path(path) / "config.json").exists():
+            raise FileNotFoundError(
+                f"checkpoint {path!r} ({name}) is not a saved policy folder (no config.json)"
+            )
+        arms[name] = Path(path)
+    if not arms:
+        raise ValueError("no checkpoints to evaluate: pass --checkpoints NAME=DIR ...")
+    return arms

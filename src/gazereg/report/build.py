@@ -1,0 +1,197 @@
+"""The experiment's report: every table, test and curve of report.json, and its figures, from the stages'
+records.
+
+    report = build_report(spec, outputs, out)    # draws out/figures/{success,convergence}.png
+    write_report(out, report)                    # out/report.json and out/report.md
+
+`ReportSpec` says what the experiment ran (from its configuration), `StageOutputs` what its stages produced
+(evaluation records, training metrics, alignment); the experiment's runner fills both.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from gazereg.report.figures import plot_convergence, plot_success
+from gazereg.report.ids import RunId
+from gazereg.report.markdown import markdown
+from gazereg.report.tables import (
+    checkpoint_tally,
+    convergence,
+    distance_table,
+    machine_summary,
+    paired_distance_tests,
+    paired_tests,
+    per_seed_table,
+    run_of,
+    success_table,
+    verdict,
+)
+from gazereg.runtime.io import atomic_write_json, atomic_write_text
+from gazereg.training.logger import read_metrics
+
+Record = dict[str, Any]
+"""one evaluation episode as `evaluation.rollout` writes it: arm (a `RunId`'s text), task, condition, seed
+(the setup), success, and min_distance / video where recorded"""
+
+
+@dataclass(frozen=True)
+class ReportSpec:
+    """What the experiment ran, as its report states it."""
+
+    preset: str
+    tasks: tuple[str, ...]
+    arms: tuple[str, ...]
+    train_seeds: tuple[int, ...]
+    train_steps: int
+    batch_size: int
+    gaze_weight: float
+    gaze_layers: tuple[int, ...]
+    eval_episodes: int
+    """unseen setups per task and condition, seeds eval_seed_start.."""
+    eval_conditions: tuple[str, ...]
+    eval_seed_start: int
+    convergence_episodes: int
+    """setups per task evaluated at each intermediate checkpoint (the first of the final evaluation's)"""
+    threshold: float
+    """success rate whose first crossing is reported as 'steps to threshold'"""
+    config: dict[str, Any]
+    """the resolved configuration, stored in report.json as it is"""
+
+
+@dataclass(frozen=True)
+class StageOutputs:
+    """What the experiment's stages produced, as the report reads it."""
+
+    episodes: list[Record]
+    """the final checkpoints' evaluation, every condition"""
+    checkpoint_episodes: list[Record]
+    """the intermediate checkpoints' clean evaluation (their runs name their step); empty when none"""
+    demos: dict[str, Any]
+    """the training demonstrations: {"episodes", "frames"}"""
+    glc: dict[str, Any] | None
+    """the GLC the experiment trained for the glc arm (checkpoint, steps, eval), or None"""
+    final_metrics: dict[RunId, dict[str, float]]
+    """each run's metrics at its last training step"""
+    metrics_files: dict[RunId, Path]
+    """each run's training metrics (metrics.jsonl)"""
+    alignment: dict[RunId, dict[str, float]]
+    """each run's attention-versus-gaze metrics on held-out frames"""
+    attention_figure: str
+    """the align stage's figure, relative to the run folder"""
+    date: str
+    stage_times: dict[str, float]
+    """seconds per finished stage"""
+
+
+def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str, Any]:
+    """report.json's content; draws the success and convergence figures into `out/figures`."""
+    episodes = outputs.episodes
+    success = success_table(episodes)
+    # Each arm against the baseline, and the gaze arm against its own perturbed-gaze control.
+    control = gaze_and_control(episodes, spec.arms)
+    paired = {**paired_tests(episodes), **paired_tests(control, "perturbed")}
+    conv = convergence(checkpoint_tally(_convergence_points(spec, outputs)), spec.threshold)
+    figs = out / "figures"
+    figs.mkdir(parents=True, exist_ok=True)
+    plot_success(success, figs / "success.png")
+    plot_convergence(conv, _training_losses(spec, outputs.metrics_files), figs / "convergence.png")
+    return {
+        **_header(spec, outputs),
+        "success": success,
+        "paired": paired,
+        "per_seed": per_seed_table(episodes) if len(spec.train_seeds) > 1 else None,
+        "distance": {
+            "table": distance_table(episodes),
+            "paired": {
+                **paired_distance_tests(episodes),
+                **paired_distance_tests(control, reference="perturbed"),
+            },
+        },
+        "verdict": verdict(success, paired=paired)
+        + (verdict(success_table(control), "perturbed", paired) if control else []),
+        "convergence": conv,
+        "glc": outputs.glc,
+        "val_loss": {str(run): m.get("val/loss_action") for run, m in outputs.final_metrics.items()},
+        "alignment": {
+            run.arm if len(spec.train_seeds) == 1 else str(run): v for run, v in outputs.alignment.items()
+        },
+        "figures": {
+            "success": "figures/success.png",
+            "convergence": "figures/convergence.png",
+            "attention": outputs.attention_figure,
+        },
+        "videos": [str(Path(e["video"]).relative_to(out)) for e in episodes if e.get("video")],
+        "config": spec.config,
+    }
+
+
+def write_report(out: Path, report: dict[str, Any]) -> Path:
+    """out/report.json and out/report.md; returns the markdown's path."""
+    atomic_write_json(out / "report.json", report)
+    atomic_write_text(out / "report.md", markdown(report))
+    return out / "report.md"
+
+
+def _header(spec: ReportSpec, outputs: StageOutputs) -> dict[str, Any]:
+    """What ran, where and for how long."""
+    return {
+        "preset": spec.preset,
+        "date": outputs.date,
+        "machine": machine_summary(),
+        "wall_time_s": sum(outputs.stage_times.values()),
+        "stage_times_s": dict(outputs.stage_times),
+        "tasks": list(spec.tasks),
+        "demos": {"episodes": outputs.demos.get("episodes"), "frames": outputs.demos.get("frames")},
+        "train": {
+            "steps": spec.train_steps,
+            "batch_size": spec.batch_size,
+            "seeds": list(spec.train_seeds),
+            "gaze_weight": spec.gaze_weight,
+            "gaze_layers": list(spec.gaze_layers),
+            "arms": list(spec.arms),
+        },
+        "eval": {
+            "episodes": spec.eval_episodes,
+            "conditions": list(spec.eval_conditions),
+            "seeds": f"{spec.eval_seed_start}..{spec.eval_seed_start + spec.eval_episodes - 1}",
+        },
+    }
+
+
+def gaze_and_control(records: list[Record], arms: tuple[str, ...]) -> list[Record]:
+    """The episodes of the gaze arm and its perturbed-gaze control, the report's second reference (every arm
+    is also compared with the baseline); empty when the run lacks either arm."""
+    if not {"gaze", "perturbed"} <= set(arms):
+        return []
+    return [r for r in records if run_of(r).arm in ("gaze", "perturbed")]
+
+
+def _convergence_points(spec: ReportSpec, outputs: StageOutputs) -> list[tuple[RunId, bool]]:
+    """Clean success at every checkpoint: the intermediate ones' episodes, then the final checkpoints' on the
+    same setups (the first `convergence_episodes` of the final evaluation's), at the last training step."""
+    last_seed = spec.eval_seed_start + min(spec.convergence_episodes, spec.eval_episodes)
+    points = [(run_of(r), bool(r["success"])) for r in outputs.checkpoint_episodes]
+    points += [
+        (run_of(r).at_step(spec.train_steps), bool(r["success"]))
+        for r in outputs.episodes
+        if r["condition"] == "clean" and r["seed"] < last_seed
+    ]
+    return points
+
+
+def _training_losses(
+    spec: ReportSpec, metrics_files: dict[RunId, Path]
+) -> dict[str, list[tuple[int, float, float | None]]]:
+    """{arm: [(step, action loss, held-out KL to its prior or None)]} of each arm's first training seed."""
+    losses = {}
+    for run, path in metrics_files.items():
+        if run.seed == spec.train_seeds[0]:
+            losses[run.arm] = [
+                (r["step"], r["loss/action"], r.get("val/gaze_kl"))
+                for r in read_metrics(path)
+                if "loss/action" in r
+            ]
+    return losses

@@ -1,0 +1,274 @@
+"""Everything a training run needs before its first step: data, policy, optimiser, resume, Accelerate.
+
+`build` makes the data sets and the policy from a config through the Policy interface only
+(`gazereg.policies.base`); `setup` adds the accelerator, the optimiser and LR schedule, the EMA, the restored
+checkpoint (with `resume`) and the data loader, and returns them as one `Run`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+
+from gazereg.attention.probe import ProbeSpec
+from gazereg.data.dataset import (
+    EpisodeDataset,
+    StepBatchSampler,
+    collate_batch,
+    describe_store,
+    select_episodes,
+    split_episodes,
+)
+from gazereg.data.store import EpisodeStore
+from gazereg.losses import WeightSchedule
+from gazereg.policies import Policy, make_policy
+from gazereg.policies.base import CONFIG_FILE
+from gazereg.runtime.config import save_config, to_dict
+from gazereg.runtime.seeding import seed_everything
+from gazereg.training.checkpoint import latest_checkpoint, load_checkpoint
+from gazereg.training.config import TrainConfig
+from gazereg.training.ema import EMA
+from gazereg.training.logger import MetricsFile, NullLogger, make_logger
+from gazereg.training.schedule import lr_lambda, param_groups
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Built:
+    """Everything `build` makes from a config (before Accelerate wraps anything)."""
+
+    policy: Policy
+    config: TrainConfig
+    """the config with the policy config resolved from the data"""
+    train_set: EpisodeDataset
+    val_set: EpisodeDataset | None
+    gaze_camera: str | None
+
+
+def build(cfg: TrainConfig) -> Built:
+    """Data sets, the policy (seeded, its config resolved from the data) with normalisation stats, gaze targets."""
+    seed_everything(cfg.seed)
+    store = EpisodeStore(cfg.data.store)
+    episodes = select_episodes(store, cfg.data.tasks, cfg.data.max_episodes)
+    train_eps, val_eps = split_episodes(store, episodes, cfg.data.val_fraction, cfg.seed)
+    policy = make_policy(cfg.policy, describe_store(store, episodes, cfg.policy.cameras))
+    pcfg = policy.config
+    gaze_camera = None
+    geometry = None
+    if cfg.gaze.prior is not None:
+        gaze_camera = cfg.gaze.camera or store.prior_info(cfg.gaze.prior).get("camera")
+        if gaze_camera is None:
+            raise ValueError(f"prior {cfg.gaze.prior!r} records no camera; set --gaze.camera")
+        geometry = policy.geometry(gaze_camera)
+        policy.resolve_layers(cfg.gaze.layers)  # fail early on bad layer ids
+
+    def dataset(eps: list[int]) -> EpisodeDataset:
+        return EpisodeDataset(
+            store,
+            eps,
+            pcfg.cameras,
+            pcfg.chunk,
+            policy.tokenizer,
+            gaze_prior=cfg.gaze.prior,
+            gaze_camera=gaze_camera,
+            geometry=geometry,
+            gaze_eps=cfg.gaze.patch_eps,
+            in_memory=cfg.data.in_memory,
+        )
+
+    train_set = dataset(train_eps)
+    val_set = dataset(val_eps) if val_eps else None
+    policy.set_normalization(**train_set.stats())
+    return Built(policy, dataclasses.replace(cfg, policy=pcfg), train_set, val_set, gaze_camera)
+
+
+def fixed_batch(ds: EpisodeDataset, n: int) -> dict[str, Tensor]:
+    """n evenly spaced samples (the same at every evaluation)."""
+    n = min(n, len(ds))
+    idx = torch.linspace(0, len(ds) - 1, n).round().long().tolist()
+    return ds.__getitems__(idx)
+
+
+@dataclass
+class Run:
+    """A training run ready for its first step (what `setup` returns)."""
+
+    cfg: TrainConfig
+    """the resolved config"""
+    acc: Any
+    """the accelerate.Accelerator"""
+    built: Built
+    model: nn.Module
+    """the policy as Accelerate prepared it (DDP-wrapped with several processes)"""
+    opt: torch.optim.Optimizer
+    sched: torch.optim.lr_scheduler.LambdaLR
+    ema: EMA | None
+    sampler: StepBatchSampler
+    loader: torch.utils.data.DataLoader
+    start: int
+    """the first step to run (the resumed checkpoint's step, else 0)"""
+    stop: int
+    """the step to stop at (cfg.steps, or cfg.stop_at when earlier)"""
+    resumed_from: Path | None
+    metrics: MetricsFile
+    logger: NullLogger
+    gaze_spec: ProbeSpec | None
+    """the probed attention when the gaze term runs (a prior and gaze.enabled), else None"""
+    gaze_weight: WeightSchedule
+    eval_batches: dict[str, dict[str, Tensor]]
+    """fixed batches for `evaluate`: 'val' (or 'train' without validation episodes)"""
+
+    @property
+    def policy(self) -> Policy:
+        return self.built.policy
+
+    @property
+    def main(self) -> bool:
+        return bool(self.acc.is_main_process)
+
+    @property
+    def run_dir(self) -> Path:
+        return Path(self.cfg.run_dir)
+
+    def eval_policy(self) -> Policy:
+        """The weights evaluations use: the EMA's when enabled, else the policy's."""
+        return self.ema.model if self.ema is not None else self.policy
+
+    def autocast(self) -> Any:
+        return self.acc.autocast() if self.cfg.mixed_precision != "no" else contextlib.nullcontext()
+
+
+def make_accelerator(cfg: TrainConfig) -> Any:
+    """The accelerate.Accelerator for cfg.device and cfg.mixed_precision (torch threads set first)."""
+    from accelerate import Accelerator
+
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    use_cpu = cfg.device == "cpu" or (cfg.device == "auto" and not torch.cuda.is_available())
+    acc = Accelerator(cpu=use_cpu, mixed_precision=cfg.mixed_precision)
+    if cfg.batch_size % acc.num_processes:
+        raise ValueError(
+            f"batch_size {cfg.batch_size} must be divisible by the number of processes ({acc.num_processes})"
+        )
+    return acc
+
+
+def checkpoint_to_resume(cfg: TrainConfig) -> Path | None:
+    """The newest checkpoint with --resume (None: start from scratch); refuses to overwrite one without."""
+    run_dir = Path(cfg.run_dir)
+    ckpt = latest_checkpoint(run_dir) if cfg.resume else None
+    if cfg.resume and ckpt is None:
+        log.warning("--resume: no checkpoint in %s, starting from scratch", run_dir)
+    if not cfg.resume and latest_checkpoint(run_dir) is not None:
+        raise FileExistsError(
+            f"{run_dir} already holds checkpoints; pass --resume to continue it or choose another --run-dir"
+        )
+    if ckpt is not None:
+        saved = json.loads((ckpt / CONFIG_FILE).read_text()).get("type")
+        if saved != cfg.policy.type:
+            raise ValueError(f"{ckpt} holds a {saved!r} policy; resume it with --policy.type {saved}")
+    return ckpt
+
+
+def make_optimiser(
+    policy: Policy, cfg: TrainConfig
+) -> tuple[torch.optim.Optimizer, torch.optim.lr_scheduler.LambdaLR, EMA | None]:
+    """AdamW over `param_groups`, the warm-up + cosine LR schedule over cfg.steps, and the EMA if enabled."""
+    opt = torch.optim.AdamW(
+        param_groups(policy, cfg.optim.weight_decay), lr=cfg.optim.lr, betas=cfg.optim.betas
+    )
+    sched = torch.optim.lr_scheduler.LambdaLR(
+        opt, lambda s: lr_lambda(s, cfg.steps, cfg.optim.warmup_steps, cfg.optim.min_lr_frac)
+    )
+    ema = EMA(policy, cfg.optim.ema_decay) if cfg.optim.ema_decay > 0 else None
+    return opt, sched, ema
+
+
+def restore(
+    ckpt: Path,
+    policy: Policy,
+    opt: torch.optim.Optimizer,
+    sched: torch.optim.lr_scheduler.LambdaLR,
+    ema: EMA | None,
+    cfg: TrainConfig,
+) -> int:
+    """Load weights, optimiser, LR schedule, RNG states (and the EMA) from `ckpt`; returns its step."""
+    state = load_checkpoint(ckpt, policy, opt, sched)
+    start = int(state["step"])
+    if ema is not None:
+        if "ema_state_dict" not in state:
+            raise ValueError(f"{ckpt} has no EMA weights but optim.ema_decay > 0")
+        ema.load_state_dict(state["ema_state_dict"], int(state.get("ema_updates", start)))
+    if state.get("steps") != cfg.steps:
+        log.warning(
+            "resuming a run planned for %s steps with steps=%d: the LR schedule changes",
+            state.get("steps"),
+            cfg.steps,
+        )
+    return start
+
+
+def setup(cfg: TrainConfig) -> Run:
+    """Accelerator, data and policy, optimiser and schedules, the resumed state, the loader: a `Run`."""
+    acc = make_accelerator(cfg)
+    ckpt = checkpoint_to_resume(cfg)
+    built = build(cfg)
+    cfg, policy, main = built.config, built.policy, acc.is_main_process
+    run_dir = Path(cfg.run_dir)
+    policy.to(acc.device)
+    opt, sched, ema = make_optimiser(policy, cfg)
+    metrics = MetricsFile(run_dir / "metrics.jsonl")
+    start = 0
+    if ckpt is not None:
+        start = restore(ckpt, policy, opt, sched, ema, cfg)
+        if main:
+            metrics.truncate_after(start)
+            log.info("resumed from %s (step %d)", ckpt, start)
+    if main:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        save_config(cfg, run_dir / "config.json")
+    acc.wait_for_everyone()
+    model, opt = acc.prepare(policy, opt)
+    stop = min(cfg.steps, cfg.stop_at) if cfg.stop_at is not None else cfg.steps
+    rank, world = acc.process_index, acc.num_processes
+    sampler = StepBatchSampler(len(built.train_set), cfg.batch_size, cfg.seed, stop, start, rank, world)
+    loader = torch.utils.data.DataLoader(
+        built.train_set,
+        batch_sampler=sampler,
+        num_workers=cfg.data.num_workers,
+        collate_fn=collate_batch,
+        pin_memory=acc.device.type == "cuda",
+        persistent_workers=False,
+    )
+    g = cfg.gaze
+    gaze_on = g.prior is not None and g.enabled
+    logger = make_logger(cfg.logger, run_dir, to_dict(cfg), cfg.wandb_project) if main else NullLogger()
+    eval_sets = {"val": built.val_set} if built.val_set is not None else {"train": built.train_set}
+    return Run(
+        cfg=cfg,
+        acc=acc,
+        built=built,
+        model=model,
+        opt=opt,
+        sched=sched,
+        ema=ema,
+        sampler=sampler,
+        loader=loader,
+        start=start,
+        stop=stop,
+        resumed_from=ckpt,
+        metrics=metrics,
+        logger=logger,
+        gaze_spec=policy.gaze_probe_spec(built.gaze_camera, g.layers) if gaze_on else None,
+        gaze_weight=WeightSchedule(g.weight, g.schedule, g.warmup_steps, cfg.steps, g.final_frac),
+        eval_batches={k: fixed_batch(ds, cfg.eval_batch_size) for k, ds in eval_sets.items()},
+    )

@@ -1,0 +1,87 @@
+"""report.md and the results blocks as text (gazereg.report.markdown): byte-identical to the renderings stored in
+tests/report_golden/ (made from a smoke run's report.json before markdown() was split into sections), and each
+section present exactly when the report has its data."""
+
+import copy
+import json
+from pathlib import Path
+
+import pytest
+
+from gazereg.report import headline_lines, markdown, results_block
+
+GOLDEN = Path(__file__).parent / "report_golden"
+
+
+@pytest.fixture
+def report():
+    return json.loads((GOLDEN / "smoke_report.json").read_text())
+
+
+def test_report_md_is_byte_identical_to_the_golden_rendering(report):
+    assert markdown(report) == (GOLDEN / "smoke_report.md").read_text()
+
+
+def test_a_several_seed_results_block_is_byte_identical_to_the_golden_rendering(report):
+    report["train"]["seeds"] = [0, 1]
+    expected = (GOLDEN / "smoke_block_two_seeds.md").read_text()
+    assert results_block(report, "figures/smoke-attention.png") == expected
+
+
+def test_a_one_seed_block_is_the_headline_alignment_verdict_and_figure(report):
+    block = results_block(report, "figures/f.png")
+    head = "\n".join(headline_lines(report))
+    assert block.startswith(head + "\n\nAttention vs gaze on held-out frames:\n")
+    assert "Paired comparisons" not in block and "Per task" not in block  # only for several training seeds
+    assert block.endswith("\n".join([*report["verdict"], "", "![attention](figures/f.png)", ""]))
+    assert head.startswith("Latest `smoke` run: ") and "(`gazereg experiment --preset smoke`)" in head
+    assert head.splitlines()[-1].startswith("| perturbed | 0/2 = 0.00 [0.00, 0.66] |")
+
+
+def test_the_quick_preset_names_make_demo(report):
+    report["preset"] = "quick"
+    assert "(`make demo`)" in headline_lines(report)[0]
+
+
+def test_sections_follow_the_reports_data(report):
+    bare = copy.deepcopy(report)
+    for key in ("alignment", "glc", "distance", "val_loss", "videos"):
+        bare.pop(key)
+    bare.update(convergence=None, paired={})
+    md = markdown(bare)
+    for absent in (
+        "Attention vs gaze",
+        "The glc arm's estimator",
+        "Closest approach",
+        "Action loss on held-out",
+        "Videos",
+        "Paired comparisons",
+        "## Convergence",
+    ):
+        assert absent not in md, absent
+    for present in (
+        "## Success",
+        "Drop from clean",
+        "## What the numbers say",
+        "## Figures",
+        "Stage times (s)",
+    ):
+        assert present in md, present
+    assert "Attention vs gaze" not in results_block(bare, "f.png")
+
+
+def test_per_seed_and_validation_loss_tables(report):
+    report["per_seed"] = {"baseline@s0": {"clean": [1, 2]}, "gaze@s0": {"dim:0.7": [0, 2]}}
+    report["val_loss"] = {"baseline@s0": 0.2, "baseline@s1": 0.1, "gaze@s0": 0.05, "gaze@s1": None}
+    md = markdown(report)
+    assert "| run | clean |" in md  # the columns: the first run's conditions; `-` where a run lacks one
+    assert "| baseline@s0 | 1/2 |" in md and "| gaze@s0 | - |" in md
+    assert "| baseline | 0.2000 | 0.1000 | 0.1500 |" in md and "| gaze | 0.0500 | - | 0.0500 |" in md
+    report["train"]["seeds"] = [0, 1]
+    assert "| baseline@s0 | 1/2 |" in results_block(report, "f.png")
+
+
+def test_up_to_twelve_videos_are_linked(report):
+    report["videos"] = [f"videos/v{i}.gif" for i in range(15)]
+    line = next(x for x in markdown(report).splitlines() if x.startswith("Videos"))
+    assert line.count("](videos/") == 12 and "[v11.gif](videos/v11.gif)" in line

@@ -1,0 +1,107 @@
+"""The worker pool (in-process and spawned), the resume log and the fingerprints."""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import os
+
+import pytest
+
+from gazereg.runtime.pool import ResumeLog, WorkerPool, fingerprint_files, fingerprint_json
+
+
+class CountingWorker:
+    """Tells which process and which worker object ran a job, and how many jobs that object ran before."""
+
+    built = 0  # in this process
+
+    def __init__(self, offset: int = 0):
+        CountingWorker.built += 1
+        self.offset, self.jobs, self.closed = offset, 0, False
+
+    def run(self, job: int) -> dict:
+        if job < 0:
+            raise ValueError(f"bad job {job}")
+        self.jobs += 1
+        return {"value": job + self.offset, "pid": os.getpid(), "worker": id(self), "before": self.jobs - 1}
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def test_in_process_pool_builds_one_worker_and_runs_in_submission_order():
+    CountingWorker.built = 0
+    seen = []
+    with WorkerPool(functools.partial(CountingWorker, 100), workers=1) as pool:
+        assert CountingWorker.built == 1  # built when the pool opens, before any job
+        worker = pool._local
+        for job in (3, 1, 2):
+            pool.submit(job, tag=f"t{job}")
+        for tag, result in pool.results():
+            seen.append((tag, result["value"]))
+            if tag == "t3":
+                pool.submit(7, tag="t7")  # submitted while iterating: run after the others
+            assert result["pid"] == os.getpid()
+    assert seen == [("t3", 103), ("t1", 101), ("t2", 102), ("t7", 107)]
+    assert CountingWorker.built == 1 and worker.closed and worker.jobs == 4
+
+
+def test_in_process_pool_raises_a_jobs_error():
+    with pytest.raises(ValueError, match="bad job -1"), WorkerPool(CountingWorker, workers=0) as pool:
+        pool.submit(-1, tag=0)
+        list(pool.results())
+
+
+@pytest.mark.slow
+def test_spawned_pool_reuses_one_worker_per_process():
+    with WorkerPool(functools.partial(CountingWorker, 10), workers=2) as pool:
+        for job in range(6):
+            pool.submit(job, tag=job)
+        results = dict(pool.results())
+        pool.submit(-1, tag="bad")
+        with pytest.raises(ValueError, match="bad job -1"):
+            list(pool.results())
+    assert {tag: r["value"] for tag, r in results.items()} == {j: j + 10 for j in range(6)}
+    assert all(r["pid"] != os.getpid() for r in results.values())
+    for pid in {r["pid"] for r in results.values()}:
+        mine = [r for r in results.values() if r["pid"] == pid]
+        assert len({r["worker"] for r in mine}) == 1  # one worker object per process, kept across jobs
+        assert sorted(r["before"] for r in mine) == list(range(len(mine)))
+
+
+def test_submit_outside_the_pool_is_refused():
+    with pytest.raises(RuntimeError, match="outside its `with` block"):
+        WorkerPool(CountingWorker, workers=1).submit(1, tag=1)
+
+
+def test_resume_log_maps_keys_to_their_latest_record_and_skips_a_cut_line(tmp_path):
+    log = ResumeLog(tmp_path / "sub" / "log.jsonl")
+    assert log.read() == {}
+    log.append("a", {"n": 1})
+    log.append("b", [1, 2])
+    log.append("a", {"n": 2})
+    with log.path.open("a") as f:
+        f.write('{"task": "reach-v3", "seed": 3}\n')  # not an entry (an older log's line): skipped
+        f.write('{"key": "c", "rec')  # a kill cut the last line short
+    assert log.read() == {"a": {"n": 2}, "b": [1, 2]}
+    lines = log.path.read_text().splitlines()
+    assert json.loads(lines[0]) == {"key": "a", "record": {"n": 1}}
+
+
+def test_fingerprints(tmp_path):
+    assert fingerprint_json({"a": 1, "b": [2]}) == fingerprint_json({"b": [2], "a": 1})
+    assert fingerprint_json({"a": 1}) != fingerprint_json({"a": 2})
+    assert len(fingerprint_json(None)) == 16
+    (tmp_path / "model.safetensors").write_bytes(b"weights")
+    (tmp_path / "config.json").write_text("{}")
+    (tmp_path / "sub").mkdir()  # folders do not count
+    first = fingerprint_files(tmp_path)
+    # The formula episode logs and stores written before the pool existed carry.
+    stats = [
+        (f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in sorted(tmp_path.iterdir()) if f.is_file()
+    ]
+    assert first == hashlib.sha256(json.dumps(stats).encode()).hexdigest()[:16]
+    (tmp_path / "model.safetensors").write_bytes(b"other weights")
+    assert fingerprint_files(tmp_path) != first
