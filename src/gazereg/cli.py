@@ -1,5 +1,7 @@
 """The `gazereg` command: a thin dispatcher over library entry points.
 
+    gazereg COMMAND [--preset NAME] [--dotted.option value ...] [--verbose]
+
 Each subcommand lives in its own module as `main(argv: list[str]) -> int` and is imported only when it runs,
 so `gazereg --help` stays fast and heavy optional dependencies load only where they are needed.
 """
@@ -8,7 +10,8 @@ from __future__ import annotations
 
 import sys
 
-from gazereg.runtime.subcommands import Subcommands
+from gazereg.runtime.errors import report_errors, split_verbose
+from gazereg.runtime.subcommands import Entry, Subcommands
 from gazereg.runtime.version import __version__
 
 # name -> ("module:function", one-line help). Only subcommands whose module is installed are offered.
@@ -49,11 +52,17 @@ COMMANDS = Subcommands(
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
+    """`gazereg COMMAND ...`: every command's errors end as one line on stderr and exit status 2 (bad usage) or
+    1 (failure); `--verbose` or GAZEREG_DEBUG=1 adds the traceback (gazereg.runtime.errors)."""
+    argv, verbose = split_verbose(list(sys.argv[1:] if argv is None else argv))
     if argv[:1] == ["--version"]:
         print(__version__)
         return 0
-    return COMMANDS.main(argv)
+
+    def run(name: str, entry: Entry, rest: list[str]) -> int:
+        return report_errors(f"gazereg {name}", entry, rest, verbose)
+
+    return COMMANDS.main(argv, run=run)
 
 
 if __name__ == "__main__":
