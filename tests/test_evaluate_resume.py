@@ -1,9 +1,15 @@
-"""A killed evaluation resumes from its episode log; a rewritten checkpoint is evaluated afresh."""
+"""A killed evaluation resumes from its episode log; a rewritten checkpoint is evaluated afresh; bad settings
+are refused when the config is built."""
+
+import os
+import subprocess
+import sys
 
 import pytest
 
 import gazereg.evaluation.rollout as ev
-from gazereg.evaluation.config import EvalConfig, presets
+from gazereg.evaluation.config import EvalConfig, parse_checkpoints, presets
+from gazereg.runtime.errors import UsageError
 
 
 class FakeWorker:
@@ -87,3 +93,64 @@ def test_libero_preset_avoids_demo_states_and_video_names_are_flat(tmp_path):
     videos = [j.video for j in jobs if j.video]
     assert len(videos) == 10 and all(v.startswith(str(tmp_path / "videos") + "/") for v in videos)
     assert all("/" not in v.rsplit("videos/", 1)[1] for v in videos)
+
+
+def _dead_pid() -> int:
+    """The PID of a process that has exited."""
+    done = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    )
+    return int(done.stdout)
+
+
+def test_evaluation_sweeps_what_killed_writers_left_in_its_folder(tmp_path, monkeypatch):
+    ckpt = tmp_path / "ckpt"
+    ckpt.mkdir()
+    (ckpt / "config.json").write_text("{}")
+    out = tmp_path / "eval"
+    (out / "videos").mkdir(parents=True)
+    stale = [
+        out / f".eval_info.json.{_dead_pid()}.abcd1234.tmp",
+        out / "videos" / f".a.gif.{_dead_pid()}.x1.tmp",
+    ]
+    for path in stale:
+        path.write_text("half")
+    live = out / f".episodes.jsonl.{os.getpid()}.abcd1234.tmp"  # a writer still running: kept
+    live.write_text("x")
+    worker = FakeWorker([], set())
+    monkeypatch.setattr(ev, "RolloutWorker", lambda *args: worker)
+    cfg = EvalConfig(checkpoints=(f"a={ckpt}",), episodes=2, workers=1, videos=0, out=out)
+    info = ev.evaluate(cfg, progress=False)
+    assert [e["seed"] for e in info["episodes"]] == [1000, 1001]
+    assert not any(path.exists() for path in stale) and live.exists()
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"episodes": 0}, "--episodes must be an integer >= 1, got 0"),
+        ({"max_steps": -1}, "--max-steps must be an integer >= 1, got -1"),
+        ({"workers": 0}, "--workers must be"),
+        ({"videos": -1}, "--videos must be"),
+        ({"seed_start": -5}, "--seed-start must be"),
+        ({"tasks": ()}, "--tasks is empty"),
+        ({"conditions": ("clean", "clean")}, "--conditions lists 'clean' more than once"),
+        ({"conditions": ("clean", "fog:0.5")}, "--conditions: 'fog:0.5': unknown perturbation 'fog'"),
+        ({"conditions": ("dim:1.5",)}, "--conditions: 'dim:1.5': severity must be in"),
+        ({"env": "gazebo"}, "--env: unknown simulator 'gazebo'"),
+    ],
+)
+def test_a_bad_evaluation_setting_is_refused_when_the_config_is_built(changes, message):
+    with pytest.raises(UsageError) as refused:
+        EvalConfig(**changes)
+    assert message in str(refused.value)
+
+
+def test_checkpoints_that_are_not_saved_policies_are_refused_by_option(tmp_path):
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(UsageError, match="--checkpoints: checkpoint '.*none' \\(none\\) does not exist"):
+        parse_checkpoints((str(tmp_path / "none"),))
+    with pytest.raises(UsageError, match="--checkpoints: '.*empty' \\(empty\\) is not a saved policy folder"):
+        parse_checkpoints((str(tmp_path / "empty"),))
+    with pytest.raises(UsageError, match="no checkpoints to evaluate"):
+        parse_checkpoints(())

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from gazereg import cli
 from gazereg.experiment import STAGES, main
 
 pytestmark = pytest.mark.sim
@@ -66,7 +67,7 @@ def test_smoke_experiment_end_to_end_and_resume(tmp_path, capsys):
         assert (out / "stages" / f"{s}.json").stat().st_mtime_ns == markers[s]
     # a changed setting would reuse stages made without it: refused, naming the setting
     capsys.readouterr()
-    assert main(["--preset", "smoke", "--out", str(out), "--train.steps", "13"]) == 2
+    assert cli.main(["experiment", "--preset", "smoke", "--out", str(out), "--train.steps", "13"]) == 2
     assert "train.steps: 12 -> 13" in capsys.readouterr().err
     assert main(["--preset", "smoke", "--out", str(out), "--parallel", "1"]) == 0  # how it runs may change
 
@@ -102,3 +103,76 @@ def test_glc_arm_uses_a_given_checkpoint_or_the_one_it_trains(tmp_path):
     assert arm_prior("baseline", cfg) is None
     with pytest.raises(KeyError, match="unknown arm 'nope'"):
         arm_prior("nope", cfg)
+
+
+def _dead_pid() -> int:
+    """The PID of a process that has exited."""
+    done = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    )
+    return int(done.stdout)
+
+
+def test_a_run_sweeps_what_killed_writers_left_in_its_folder(tmp_path, monkeypatch):
+    import os
+    from dataclasses import replace
+
+    import gazereg.experiment.runner as runner
+    from gazereg.experiment import Experiment
+    from gazereg.experiment.config import smoke
+
+    stale = tmp_path / "train" / "gaze_s0" / "checkpoints" / f".step_000010.{_dead_pid()}.abcd1234.tmp"
+    stale.mkdir(parents=True)
+    live = tmp_path / f".config.json.{os.getpid()}.abcd1234.tmp"
+    live.write_text("x")
+    monkeypatch.setattr(runner, "STAGES", ())  # no stage runs: only what a run does first
+    assert Experiment(replace(smoke(), out=tmp_path)).run() == {}
+    assert not stale.exists() and live.exists()
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"arms": ("baseline", "nosuch")}, "--arms: unknown arm 'nosuch'; choose from baseline, gaze"),
+        ({"arms": ("gaze", "gaze")}, "--arms lists gaze more than once"),
+        ({"arms": ()}, "--arms is empty"),
+        ({"train_seeds": ()}, "--train-seeds is empty"),
+        ({"tasks": ()}, "--tasks is empty"),
+        ({"demos_per_task": 0}, "--demos-per-task must be an integer >= 1, got 0"),
+        ({"heldout_per_task": 0}, "--heldout-per-task must be"),
+        ({"glc_steps": 0}, "--glc-steps must be"),
+        ({"parallel": 0}, "--parallel must be"),
+        ({"threads_per_run": 0}, "--threads-per-run must be"),
+        ({"convergence_points": 0}, "--convergence-points must be"),
+        ({"convergence_episodes": 0}, "--convergence-episodes must be"),
+        ({"threshold": 0.0}, "--threshold must be a finite number in (0, 1), got 0.0"),
+        ({"threshold": 1.0}, "--threshold must be"),
+        ({"figure_frames": 0}, "--figure-frames must be"),
+        ({"prior_size": (0, 64)}, "--prior-size must be"),
+        ({"image_size": 4}, "--image-size must be"),
+    ],
+)
+def test_a_bad_experiment_setting_is_refused_when_the_config_is_built(changes, message):
+    from dataclasses import replace
+
+    from gazereg.experiment.config import smoke
+    from gazereg.runtime.errors import UsageError
+
+    with pytest.raises(UsageError) as refused:
+        replace(smoke(), **changes)
+    assert message in str(refused.value)
+
+
+def test_nested_settings_are_named_with_their_path_on_the_command_line():
+    from gazereg.experiment.config import PRESETS
+    from gazereg.runtime.config import parse
+    from gazereg.runtime.errors import UsageError
+
+    for args, message in (
+        (["--eval.episodes", "0"], "--eval.episodes must be an integer >= 1, got 0"),
+        (["--eval.conditions", "clean", "fog"], "--eval.conditions: 'fog': unknown perturbation 'fog'"),
+        (["--train.batch-size", "0"], "--train.batch-size must be"),
+    ):
+        with pytest.raises(UsageError) as refused:
+            parse(PRESETS, ["--preset", "smoke", *args], prog="gazereg experiment")
+        assert message in str(refused.value)

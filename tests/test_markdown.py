@@ -85,3 +85,16 @@ def test_up_to_twelve_videos_are_linked(report):
     report["videos"] = [f"videos/v{i}.gif" for i in range(15)]
     line = next(x for x in markdown(report).splitlines() if x.startswith("Videos"))
     assert line.count("](videos/") == 12 and "[v11.gif](videos/v11.gif)" in line
+
+
+def test_validation_loss_columns_are_training_seeds_in_numeric_order(report):
+    report["val_loss"] = {"baseline@s0": 0.3, "baseline@s2": 0.2, "baseline@s10": 0.1, "gaze@s10": 0.05}
+    md = markdown(report)
+    assert "| arm | s0 | s2 | s10 | mean |" in md  # run names parsed as RunIds: seed 10 after seed 2
+    assert (
+        "| baseline | 0.3000 | 0.2000 | 0.1000 | 0.2000 |" in md
+        and "| gaze | - | - | 0.0500 | 0.0500 |" in md
+    )
+    report["val_loss"] = {"baseline": 0.3}  # not a run name: refused, not shown under a "-" seed
+    with pytest.raises(ValueError, match="is not a run name"):
+        markdown(report)

@@ -154,3 +154,14 @@ def test_eval_worker_rejects_an_unknown_simulator():
 
     with pytest.raises(ValueError, match="unknown simulator 'gazebo'"):
         Worker(max_steps=10, gl_backend=None, env="gazebo")
+
+
+def test_paired_comparison_names_are_written_and_read_in_one_place():
+    from gazereg.report.tables import paired_name, split_paired_name
+
+    recs = records("baseline@s0", [0, 1], "dim:0.7") + records("gaze@s0", [1, 1], "dim:0.7")
+    (name,) = paired_tests(recs)
+    assert name == paired_name("gaze", "baseline", "dim:0.7") == "gaze vs baseline | dim:0.7"
+    assert split_paired_name(name) == ("gaze", "baseline", "dim:0.7")
+    with pytest.raises(ValueError, match="not a paired comparison's name"):
+        split_paired_name("gaze | clean")

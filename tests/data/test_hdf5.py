@@ -8,8 +8,9 @@ import pytest
 
 h5py = pytest.importorskip("h5py")
 
+from gazereg.cli import main as gazereg_main  # noqa: E402
 from gazereg.data import cli as data_cli  # noqa: E402
-from gazereg.data.errors import DataImportError  # noqa: E402
+from gazereg.data.errors import DataImportError, ImportUsageError  # noqa: E402
 from gazereg.data.formats.hdf5 import Hdf5ImportConfig, import_hdf5  # noqa: E402
 from gazereg.data.formats.hdf5.demos import instruction_from_filename  # noqa: E402
 from gazereg.data.store import EpisodeStore  # noqa: E402
@@ -215,10 +216,23 @@ def test_cli(tmp_path, capsys):
     src = write_libero(tmp_path / "put_the_bowl_on_the_plate_demo.hdf5", lengths=(3,))
     assert data_cli.main(["hdf5", "--file", str(src), "--out", str(tmp_path / "s"), "--no-progress"]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["imported"] == 1
+    with pytest.raises(ImportUsageError, match="missing.hdf5 does not exist"):  # the gazereg CLI reports it
+        data_cli.main(["hdf5", "--file", str(tmp_path / "missing.hdf5"), "--out", str(tmp_path / "s")])
+    missing = ["import", "hdf5", "--file", str(tmp_path / "missing.hdf5"), "--out", str(tmp_path / "s")]
+    assert gazereg_main(missing) == 2  # a usage mistake: one line, no traceback
+    err = capsys.readouterr().err
     assert (
-        data_cli.main(["hdf5", "--file", str(tmp_path / "missing.hdf5"), "--out", str(tmp_path / "s")]) == 1
+        err.startswith("gazereg import: error: HDF5 file ")
+        and err.count("\n") == 1
+        and "Traceback" not in err
     )
-    assert "missing.hdf5 does not exist" in capsys.readouterr().err
+    trunc = tmp_path / "trunc_demo.hdf5"
+    trunc.write_bytes(src.read_bytes()[:2000])
+    assert (
+        gazereg_main(["import", "hdf5", "--file", str(trunc), "--out", str(tmp_path / "u")]) == 1
+    )  # a failure
+    err = capsys.readouterr().err
+    assert "trunc_demo.hdf5 could not be opened" in err and err.count("\n") == 1
 
 
 def test_export_priors_of_hdf5_episodes_stays_upright(tmp_path):
@@ -244,3 +258,44 @@ def test_export_priors_of_hdf5_episodes_stays_upright(tmp_path):
     r, c = np.unravel_index(heat.argmax(), heat.shape)  # the peak is on the marker of the upright frame
     assert ok and (r, c) == ((HW[0] - 1 - MARK[0]) * 12 // HW[0], (HW[1] - 1 - MARK[1]) * 16 // HW[1])
     assert not sc.get(1, 1)[1]  # the NaN gaze frame is invalid
+
+
+def test_non_finite_extras_are_refused_with_their_row(tmp_path):
+    src = write_libero(tmp_path / "put_the_bowl_on_the_plate_demo.hdf5", lengths=(3, 4))
+    with h5py.File(src, "a") as f:
+        states = f["data/demo_1/states"][()]
+        states[2, 7] = np.nan
+        f["data/demo_1/states"][...] = states
+    with pytest.raises(
+        DataImportError,
+        match=r"_demo\.hdf5, demo_1: dataset 'states' has 1 NaN/inf value\(s\), the first at row 2, column 7 "
+        r"\(nan\) \(corrupt data\?\); pass --nonfinite-ok states",
+    ):
+        import_hdf5(cfg(src, tmp_path / "s"))
+    _assert_no_partial(tmp_path / "s", [0])
+    import_hdf5(cfg(src, tmp_path / "s", nonfinite_ok=("states",)))  # kept as it is when asked
+    assert np.isnan(EpisodeStore(tmp_path / "s").read(1).extras["sim_state"][2, 7])
+    with h5py.File(src, "a") as f:
+        f["data/demo_0/obs/joint_states"][1, 0] = np.inf
+    with pytest.raises(
+        DataImportError, match=r"demo_0: dataset 'obs/joint_states' has 1 NaN/inf .* row 1, column 0"
+    ):
+        import_hdf5(cfg(src, tmp_path / "t"))
+
+
+def test_an_import_sweeps_what_a_killed_import_left(tmp_path):
+    import subprocess
+    import sys
+
+    src = write_libero(tmp_path / "put_the_bowl_on_the_plate_demo.hdf5", lengths=(3,))
+    store = EpisodeStore(tmp_path / "s", create=True)
+    code = (
+        "import os, sys\n"
+        "from gazereg.runtime.io import atomic_dir\n"
+        "d = atomic_dir(sys.argv[1] + '/ep_000000'); (d.__enter__() / 'frames.agentview_rgb.npy').write_bytes(b'x')\n"
+        "os._exit(0)\n"
+    )
+    subprocess.run([sys.executable, "-c", code, str(store.root / "episodes")], check=True)
+    assert [p.name.endswith(".tmp") for p in (store.root / "episodes").iterdir()] == [True]
+    import_hdf5(cfg(src, store.root))
+    assert sorted(p.name for p in (store.root / "episodes").iterdir()) == ["ep_000000"]

@@ -12,6 +12,7 @@ pytest.importorskip("av")
 pa = pytest.importorskip("pyarrow")
 pq = pytest.importorskip("pyarrow.parquet")
 
+from gazereg.cli import main as gazereg_main  # noqa: E402
 from gazereg.data import cli as data_cli  # noqa: E402
 from gazereg.data.errors import DataExportError, DataImportError  # noqa: E402
 from gazereg.data.export import parse_episode_map  # noqa: E402
@@ -21,6 +22,7 @@ from gazereg.data.formats.video import VideoFile  # noqa: E402
 from gazereg.data.store import EpisodeStore  # noqa: E402
 from gazereg.gaze.aggregation import AggregationConfig  # noqa: E402
 from gazereg.gaze.priors import PriorsConfig, make_priors  # noqa: E402
+from gazereg.runtime.errors import UsageError  # noqa: E402
 
 FIXTURE = (
     Path(os.environ.get("GAZEREG_FIXTURES", Path(__file__).resolve().parents[3] / "shared" / "fixtures"))
@@ -297,7 +299,7 @@ def test_export_undoes_import_rotation_and_episode_map(tmp_path):
     np.testing.assert_allclose(a.priors, b.priors, atol=1e-6)
     m = read_priors_lerobot(export_priors_lerobot(plain, "recorded", tmp_path / "m", episode_map={0: 7}))
     assert set(m.episode_index.tolist()) == {7}
-    with pytest.raises(FileNotFoundError, match="no priors named 'nope'"):
+    with pytest.raises(UsageError, match="no priors named 'nope'"):
         export_priors_lerobot(plain, "nope", tmp_path / "x")
     with pytest.raises(DataExportError, match="no 'recorded' priors to export for the given episode map"):
         export_priors_lerobot(plain, "recorded", tmp_path / "d", episode_map={5: 7})
@@ -335,8 +337,16 @@ def test_cli_import_and_export(tmp_path, capsys):
         == 0
     )
     assert (tmp_path / "x" / "priors.json").exists()
-    assert data_cli.main(["lerobot", "--root", str(tmp_path / "missing"), "--out", str(out)]) == 1
-    assert "not a LeRobot data set" in capsys.readouterr().err
+    capsys.readouterr()
+    missing = ["import", "lerobot", "--root", str(tmp_path / "missing"), "--out", str(out)]
+    assert gazereg_main(missing) == 2  # a wrong path is a usage mistake (the top-level CLI reports it)
+    err = capsys.readouterr().err
+    assert (
+        err.startswith("gazereg import: error: ") and "not a LeRobot data set" in err and err.count("\n") == 1
+    )
+    bad_map = ["import", "export-priors", "--store", str(out), "--prior", "recorded", "--episode-map", "0:7"]
+    assert gazereg_main([*bad_map, "--out", str(tmp_path / "y")]) == 2
+    assert "store_index=episode_index" in capsys.readouterr().err
     assert data_cli.main(["nope"]) == 2
     assert data_cli.main(["--help"]) == 0
 
@@ -470,7 +480,10 @@ def test_non_finite_state_is_refused_by_name(copy, tmp_path):
     col = pa.array(states, t.schema.field("observation.state").type)
     t = t.set_column(t.column_names.index("observation.state"), "observation.state", col)
     pq.write_table(t, copy / DATA)
-    with pytest.raises(DataImportError, match=r"/ds: episode 1: 'state' must be a finite"):
+    with pytest.raises(
+        DataImportError,
+        match=r"/ds: episode 1: 'state' must be finite but has 1 NaN/inf value\(s\), the first at row 5, column 0 \(nan\)",
+    ):
         import_lerobot(cfg(copy, tmp_path / "s"))
     _assert_no_partial(tmp_path / "s", [0])
 

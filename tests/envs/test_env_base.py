@@ -6,6 +6,7 @@ import pytest
 
 from gazereg.envs import base
 from gazereg.envs.base import Simulator, UnknownSimulator, env_class, make_collector, register_simulator
+from gazereg.runtime.errors import UsageError
 
 
 def test_unknown_simulator_names_the_registered_ones():
@@ -13,7 +14,7 @@ def test_unknown_simulator_names_the_registered_ones():
         UnknownSimulator, match=r"unknown simulator 'gazebo'; choose one of \['libero', 'metaworld'\]"
     ):
         base.simulator("gazebo")
-    with pytest.raises(ValueError):  # an UnknownSimulator is a ValueError
+    with pytest.raises(UsageError):  # a user mistake: `gazereg` exits 2 with its message
         make_collector("gazebo")
 
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -89,12 +91,23 @@ def test_collection_writes_what_it_claims(collected):
     assert on_disk["new_episodes"] == 4 and on_disk["complete"]
 
 
+def _dead_pid() -> int:
+    """The PID of a process that has exited."""
+    done = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    )
+    return int(done.stdout)
+
+
 @pytest.mark.sim
 def test_rerun_resumes_without_touching_episodes(collected):
     cfg, _ = collected
     ep_dir = Path(cfg.out) / "episodes" / "ep_001000"
     before = (ep_dir / "meta.json").stat().st_mtime_ns
+    stale = Path(cfg.out) / "episodes" / f".ep_000002.{_dead_pid()}.abcd1234.tmp"  # a killed writer's
+    stale.mkdir()
     report = collect(cfg)
+    assert not stale.exists()  # swept at the start
     assert report.complete and report.new_episodes == 0
     assert report.tasks["reach-v3"]["resumed"] == 2
     assert (ep_dir / "meta.json").stat().st_mtime_ns == before
@@ -116,7 +129,7 @@ def test_mismatched_rerun_is_refused(collected):
         collect(replace(cfg, tasks=("pick-place-v3",)))
     with pytest.raises(CollectError, match="other settings"):
         collect(replace(cfg, image_size=32))
-    with pytest.raises(CollectError, match="unknown Meta-World task"):
+    with pytest.raises(CollectError, match=r"--tasks: unknown Meta-World task\(s\) \['juggle-v3'\]"):
         collect(replace(cfg, tasks=("reach-v3", "juggle-v3")))
 
 
@@ -223,5 +236,56 @@ def test_perturbed_collection_is_the_same_episode_under_other_light(tmp_path, gl
 
 
 def test_bad_perturbation_is_refused_by_name(tmp_path):
-    with pytest.raises(CollectError, match="perturbation='darker:0.5'.*unknown perturbation"):
+    with pytest.raises(CollectError, match="--perturbation 'darker:0.5': unknown perturbation 'darker'"):
         collect(CollectConfig(out=tmp_path, tasks=("reach-v3",), perturbation="darker:0.5", progress=False))
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"episodes": 0}, "--episodes must be an integer in [1, 1000], got 0"),
+        ({"episodes": 990, "max_failures": 20}, "--max-failures must be an integer in [0, 10], got 20"),
+        ({"seed_base": -1}, "--seed-base must be"),
+        ({"max_steps": -1}, "--max-steps must be"),
+        ({"workers": -1}, "--workers must be"),
+        ({"image_size": 4}, "--image-size must be an integer >= 8, got 4"),
+        ({"action_noise": float("nan")}, "--action-noise must be"),
+        ({"goal_marker_radius": -0.1}, "--goal-marker-radius must be"),
+        ({"tasks": ()}, "--tasks is empty"),
+        ({"tasks": ("reach-v3", "reach-v3")}, "--tasks lists 'reach-v3' more than once"),
+        ({"cameras": ("corner2", "corner2")}, "--cameras lists 'corner2' more than once"),
+        ({"perturbation": "dim:3"}, "--perturbation 'dim:3': severity must be in [0, 1]"),
+        ({"env": "libero", "perturbation": "dim:0.5"}, "only the metaworld simulator renders one"),
+        ({"env": "bullet"}, "--env: unknown simulator 'bullet'"),
+    ],
+)
+def test_bad_settings_are_refused_when_the_config_is_built(changes, message):
+    from gazereg.runtime.errors import UsageError
+
+    with pytest.raises(UsageError) as refused:
+        CollectConfig(**changes)
+    assert message in str(refused.value)
+
+
+def test_more_steps_than_the_simulator_allows_are_refused_by_option():
+    pytest.importorskip("metaworld")
+    from gazereg.envs.base import make_collector
+    from gazereg.envs.collect_config import resolve
+
+    limit = make_collector("metaworld").max_steps_limit
+    with pytest.raises(CollectError, match=f"--max-steps must be <= {limit} for metaworld, got {limit + 1}"):
+        resolve(CollectConfig(tasks=("reach-v3",), max_steps=limit + 1))
+
+
+def test_the_command_line_raises_rather_than_printing(tmp_path, monkeypatch):
+    """`main` leaves the error line and the exit status to `gazereg`: bad settings and an incomplete
+    collection are exceptions."""
+    import gazereg.envs.collect as collect_module
+    from gazereg.envs.collect import CollectionIncomplete, CollectReport
+
+    with pytest.raises(CollectError, match="--perturbation 'fog'"):
+        main(["--out", str(tmp_path), "--perturbation", "fog"])
+    incomplete = CollectReport(tasks={}, seconds=1.0, new_episodes=0, new_frames=0, complete=False)
+    monkeypatch.setattr(collect_module, "collect", lambda cfg: incomplete)
+    with pytest.raises(CollectionIncomplete, match="fewer episodes than asked for"):
+        main(["--out", str(tmp_path)])

@@ -3,12 +3,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gazereg.cli import main as gazereg_main
 from gazereg.data.store import Episode, EpisodeStore
 from gazereg.gaze.priors import PriorsCommand, PriorsConfig, main, make_priors
 from gazereg.gaze.sources import available_gaze_sources, make_gaze_source, parse_source_params
 from gazereg.gaze.sources.glc import GLCParams
 from gazereg.gaze.sources.perturbed import PerturbedParams
 from gazereg.gaze.sources.visuomotor import VisuomotorParams
+from gazereg.runtime.errors import UsageError
 
 
 def square_episode(T=6, hw=(32, 32), pos=(0.25, 0.75)):
@@ -40,9 +42,9 @@ def test_registry_lists_builtins_and_rejects_unknown():
     assert {"uniform", "saliency", "perturbed", "recorded", "visuomotor", "glc"} <= set(
         available_gaze_sources()
     )
-    with pytest.raises(KeyError, match="unknown gaze source 'nope'"):
+    with pytest.raises(UsageError, match="unknown gaze source 'nope'; available: glc, perturbed, recorded"):
         make_gaze_source("nope")
-    with pytest.raises(TypeError, match="bad parameters for gaze source 'uniform'"):
+    with pytest.raises(UsageError, match="bad parameters for gaze source 'uniform'"):
         make_gaze_source("uniform", sigma=1)
 
 
@@ -57,7 +59,7 @@ def test_recorded_gaze_marks_lost_frames_invalid():
     heat, valid = make_gaze_source("recorded")(square_episode(), "cam", (16, 16))
     assert valid.tolist() == [True, False, True, True, True, True]
     assert np.unravel_index(heat[0].argmax(), heat[0].shape) == (11, 3)
-    with pytest.raises(KeyError, match="no recorded gaze 'gaze_uv.wrist'"):
+    with pytest.raises(UsageError, match="no recorded gaze 'gaze_uv.wrist'"):
         make_gaze_source("recorded")(square_episode(), "wrist", (16, 16))
 
 
@@ -71,7 +73,7 @@ def test_priors_pipeline_resumes_and_refuses_changed_settings(store):
     mtime = (store.prior_dir("recorded") / "ep_000000.npz").stat().st_mtime_ns
     make_priors(cfg, progress=False)  # resume: nothing recomputed
     assert (store.prior_dir("recorded") / "ep_000000.npz").stat().st_mtime_ns == mtime
-    with pytest.raises(ValueError, match="other settings"):
+    with pytest.raises(UsageError, match=r"other settings \(size: stored \[16, 16\], requested \[8, 8\]\)"):
         make_priors(
             PriorsConfig(store=store.root, source="recorded", camera="cam", size=(8, 8)), progress=False
         )
@@ -119,24 +121,26 @@ def test_source_params_from_the_command_line_are_typed_once():
     vm = parse_source_params("visuomotor", ["targets=obj,goal", "fps=80"])
     assert vm == VisuomotorParams(targets=("obj", "goal"), fps=80.0)
     assert parse_source_params("visuomotor", ['targets=["goal"]']).targets == ("goal",)
-    with pytest.raises(ValueError, match="key=value"):
+    with pytest.raises(UsageError, match="key=value"):
         parse_source_params("glc", ["oops"])
     with pytest.raises(
-        ValueError, match="has no parameter 'strid'; its parameters: checkpoint, config, stride"
+        UsageError, match="has no parameter 'strid'; its parameters: checkpoint, config, stride"
     ):
         parse_source_params("glc", ["strid=1"])
-    with pytest.raises(ValueError, match="bad value stride='two': expected an integer"):
+    with pytest.raises(UsageError, match="bad value stride='two': expected an integer"):
         parse_source_params("glc", ["stride=two"])
-    with pytest.raises(ValueError, match="bad value mode='middle': choose one of centre, average"):
+    with pytest.raises(UsageError, match="bad value mode='middle': choose one of centre, average"):
         parse_source_params("glc", ["mode=middle"])
-    with pytest.raises(KeyError, match="unknown gaze source 'nope'"):
+    with pytest.raises(UsageError, match="gaze source 'recorded': sigma must be > 0, got -1.0"):
+        parse_source_params("recorded", ["sigma=-1"])
+    with pytest.raises(UsageError, match="unknown gaze source 'nope'"):
         parse_source_params("nope", [])
 
 
 def test_params_are_checked_when_made():
-    with pytest.raises(ValueError, match="jitter_rho"):
+    with pytest.raises(UsageError, match="jitter_rho"):
         VisuomotorParams(jitter_rho=1.0)
-    with pytest.raises(ValueError, match="unknown perturbation"):
+    with pytest.raises(UsageError, match="unknown perturbation"):
         PerturbedParams(mode="flip")  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="once"):
         make_gaze_source(VisuomotorParams(), jitter=0.0)
@@ -156,5 +160,10 @@ def test_priors_command_converts_its_text_parameters(store, capsys):
         "--camera",
         "cam",
     ]
-    assert main(argv) == 2
-    assert "gaze source 'uniform' has no parameter 'sigma'" in capsys.readouterr().err
+    assert gazereg_main(["priors", *argv]) == 2
+    err = capsys.readouterr().err
+    assert (
+        err == "gazereg priors: error: gaze source 'uniform' has no parameter 'sigma'; its parameters: none\n"
+    )
+    with pytest.raises(UsageError, match="has no parameter 'sigma'"):
+        main(argv)

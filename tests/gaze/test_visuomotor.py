@@ -9,6 +9,7 @@ import pytest
 
 from gazereg.data.store import Episode
 from gazereg.gaze.sources import available_gaze_sources, make_gaze_source
+from gazereg.runtime.errors import UsageError
 
 CAM = "cam"
 
@@ -60,7 +61,7 @@ def test_registered():
     assert "visuomotor" in available_gaze_sources()
     src = make_gaze_source("visuomotor", lead_time_s=0.5)
     assert src.name == "visuomotor" and src.describe()["lead_time_s"] == 0.5
-    with pytest.raises(TypeError, match="visuomotor"):
+    with pytest.raises(UsageError, match="visuomotor"):
         make_gaze_source("visuomotor", lead=1)
 
 

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
-from gazereg.gaze.glc.cli import main
+from gazereg.gaze.glc.cli import GLCEvalCommand, main
 from gazereg.gaze.glc.data import (
     StoreClipDataset,
     episode_gaze_points,
@@ -15,6 +17,9 @@ from gazereg.gaze.glc.data import (
     write_synthetic_gaze_store,
 )
 from gazereg.gaze.glc.evaluate import HoldoutSplit, holdout_split
+from gazereg.runtime.errors import UsageError
+from gazereg.training.glc import GLCTrainConfig
+from gazereg.training.glc_store import GLCStoreTrainConfig
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +33,7 @@ def test_split_is_deterministic_and_per_task(tmp_path):
     s = write_synthetic_gaze_store(tmp_path / "s", episodes=6, length=2, size=8, camera="cam", tasks=2)
     assert holdout_split(s, holdout_every=3) == HoldoutSplit(train=(0, 1, 2, 3), heldout=(4, 5))
     assert holdout_split(s, holdout=(1,)).to_dict() == {"train": [0, 2, 3, 4, 5], "heldout": [1]}
-    with pytest.raises(KeyError):
+    with pytest.raises(UsageError, match=r"--holdout: held-out episodes \[9\] are not in"):
         holdout_split(s, holdout=(9,))
 
 
@@ -162,7 +167,15 @@ def test_library_training_returns_a_typed_result(store, tmp_path):
         optim=replace(base.optim, steps=1, batch_size=2, warmup_steps=1),
         evaluate=False,
     )
+    done = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    )
+    stale = (
+        tmp_path / "lib" / "checkpoints" / f".step_000001.{int(done.stdout)}.abcd1234.tmp"
+    )  # a killed run's
+    stale.mkdir(parents=True)
     result = train_glc_on_store(cfg)
+    assert not stale.exists()  # swept at the start
     assert result.steps == 1 and result.final == tmp_path / "lib" / "final"
     assert result.split == HoldoutSplit(train=(0, 1, 2), heldout=(3,))
     assert result.eval_path is None and result.eval_report is None and result.first_loss is not None
@@ -181,3 +194,38 @@ def test_gaze_params_are_recorded_as_text_that_reads_back():
     text = source_params_text(params)
     assert text == ("lead_time_s=0.4", 'targets=["a", "b"]', "seed=3")
     assert parse_source_params("visuomotor", text) == params
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda: GLCTrainConfig(steps=0), "--optim.steps must be an integer >= 1, got 0"),
+        (lambda: GLCTrainConfig(batch_size=0), "--optim.batch-size must be"),
+        (lambda: GLCTrainConfig(lr=float("nan")), "--optim.lr must be a finite number > 0, got nan"),
+        (lambda: GLCTrainConfig(warmup_steps=-1), "--optim.warmup-steps must be"),
+        (lambda: GLCTrainConfig(temperature=0), "--optim.temperature must be"),
+        (lambda: GLCTrainConfig(checkpoint_every=0), "--optim.checkpoint-every must be"),
+        (lambda: GLCTrainConfig(keep_last=0), "--optim.keep-last must be"),
+        (lambda: GLCStoreTrainConfig(stride=0), "--stride must be"),
+        (lambda: GLCStoreTrainConfig(clip_hop=0), "--clip-hop must be"),
+        (lambda: GLCStoreTrainConfig(holdout_every=1), "--holdout-every must be an integer >= 2, got 1"),
+        (lambda: GLCStoreTrainConfig(config="huge"), "--config must be one of full, small, got 'huge'"),
+        (lambda: GLCEvalCommand(hop=0), "--hop must be"),
+        (lambda: GLCEvalCommand(batch_size=0), "--batch-size must be"),
+        (lambda: GLCEvalCommand(stride=0), "--stride must be"),
+    ],
+)
+def test_bad_glc_settings_are_refused_when_built(make, message):
+    with pytest.raises(UsageError) as refused:
+        make()
+    assert message in str(refused.value)
+
+
+def test_eval_refuses_episodes_the_store_lacks(store, tmp_path, capsys):
+    from gazereg import cli
+
+    ckpt = tmp_path / "glc.pyth"
+    ckpt.write_bytes(b"")
+    args = ["glc", "eval", "--store", str(store.root), "--checkpoint", str(ckpt), "--episodes", "0", "77"]
+    assert cli.main(args) == 2
+    assert "--episodes: episodes [77] are not in" in capsys.readouterr().err

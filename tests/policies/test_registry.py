@@ -26,6 +26,7 @@ from gazereg.policies import (
 )
 from gazereg.policies.vla import VLAConfig, VLAPolicy
 from gazereg.runtime.config import parse, to_dict
+from gazereg.runtime.errors import UsageError
 from gazereg.training.checkpoint import latest_checkpoint
 from gazereg.training.config import PRESETS, TrainConfig, smoke
 from gazereg.training.logger import read_metrics
@@ -55,7 +56,7 @@ def test_policy_type_on_the_command_line_picks_the_registered_config(toy_policy)
     same = parse(PRESETS, ["--preset", "smoke", "--policy.type=vla", "--policy.depth", "3"], prog="t")
     assert same.policy == dataclasses.replace(smoke().policy, depth=3)  # the preset's VLA config is kept
     assert to_dict(same)["policy"]["type"] == "vla" and "policy_type" not in to_dict(same)
-    with pytest.raises(SystemExit, match="unknown policy type 'nope'"):
+    with pytest.raises(UsageError, match="unknown policy type 'nope'"):
         parse(PRESETS, ["--policy.type", "nope"], prog="t")
 
 

@@ -17,9 +17,7 @@ atomically.
 from __future__ import annotations
 
 import logging
-import sys
 
-from gazereg.data.errors import DataExportError, DataImportError
 from gazereg.runtime.subcommands import Entry, Subcommands, run_entry
 
 COMMANDS = Subcommands(
@@ -45,13 +43,11 @@ COMMANDS = Subcommands(
 
 
 def _run(name: str, entry: Entry, argv: list[str]) -> int:
-    """Run a subcommand; a bad or missing source file is exit status 1 with the error on stderr."""
+    """Run a subcommand with INFO logging. Errors propagate to the `gazereg` command, which prints one line
+    and exits with status 1 for a bad source file (`DataImportError`, `DataExportError`) and 2 for a usage
+    mistake (`ImportUsageError`, `ExportUsageError`, a missing path)."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        return run_entry(name, entry, argv)
-    except (DataImportError, DataExportError, FileNotFoundError) as e:
-        print(f"gazereg import {name}: error: {e}", file=sys.stderr)
-        return 1
+    return run_entry(name, entry, argv)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -31,8 +31,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from gazereg.data.store import EpisodeStore
+from gazereg.data.store import EpisodeStore, MissingPriorError
 from gazereg.patches import PatchGeometry, patch_distribution
+from gazereg.runtime.errors import UsageError
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +54,8 @@ class StoreInfo:
 def select_episodes(
     store: EpisodeStore, tasks: Sequence[str] = (), max_episodes: int | None = None
 ) -> list[int]:
-    """Episode indices of the store, optionally only some tasks and at most max_episodes per task."""
+    """Episode indices of the store, optionally only some tasks and at most max_episodes per task; a selection
+    that matches nothing is a `UsageError` that lists the store's tasks."""
     out, per_task = [], {}
     for i in store.indices():
         task = store.meta(i)["task"]
@@ -65,8 +67,11 @@ def select_episodes(
         out.append(i)
     if not out:
         have = sorted({store.meta(i)["task"] for i in store.indices()})
-        raise ValueError(
-            f"no episodes selected from {store.root} (tasks={list(tasks)}; the store has tasks {have})"
+        if not have:
+            raise UsageError(f"store {store.root} has no episodes")
+        raise UsageError(
+            f"no episodes selected from {store.root}: tasks {', '.join(tasks)} match none of its tasks "
+            f"({', '.join(have)})"
         )
     return out
 
@@ -98,14 +103,18 @@ def split_episodes(
 
 
 def describe_store(store: EpisodeStore, episodes: Sequence[int], cameras: Sequence[str] = ()) -> StoreInfo:
-    """Cameras (default: all of the first episode's, sorted), frame sizes and dimensions; checks consistency."""
+    """Cameras (default: all of the first episode's, sorted), frame sizes and dimensions; checks consistency
+    (a camera some episode lacks is a `UsageError`)."""
     metas = [store.meta(i) for i in episodes]
     cams = tuple(cameras) if cameras else tuple(sorted(metas[0]["cameras"]))
     hw: dict[str, tuple[int, int]] = {}
     for m in metas:
         for cam in cams:
             if cam not in m["cameras"]:
-                raise KeyError(f"episode {m['index']} has no camera {cam!r}; it has {sorted(m['cameras'])}")
+                raise UsageError(
+                    f"camera {cam!r}: episode {m['index']} of store {store.root} has no such camera; "
+                    f"it has {', '.join(sorted(m['cameras']))}"
+                )
             size = tuple(m["cameras"][cam])
             if hw.setdefault(cam, size) != size:
                 raise ValueError(
@@ -191,25 +200,25 @@ class EpisodeDataset(torch.utils.data.Dataset):
         info = self.store.prior_info(name)
         camera = camera or info.get("camera")
         if camera is None:
-            raise ValueError(
+            raise UsageError(
                 f"prior {name!r} does not record its camera (prior.json); pass the gaze camera explicitly"
             )
         if camera not in self.cameras:
-            raise ValueError(
+            raise UsageError(
                 f"prior {name!r} is for camera {camera!r}, which the policy does not see (cameras {self.cameras})"
             )
         if geometry is None:
             raise ValueError("mapping gaze onto patches needs the policy's image geometry of the gaze camera")
         missing = [i for i in self.episodes if not self.store.has_prior(name, i)]
         if missing:
-            raise FileNotFoundError(
+            raise MissingPriorError(
                 f"{len(missing)} episode(s) have no {name!r} prior (first: {missing[:5]}); run `gazereg priors` for the store"
             )
         dists, valids = [], []
         for i, T in zip(self.episodes, self.lengths.tolist()):
-            heat, valid = self.store.read_prior(name, i)
+            heat, valid = self.store.read_prior(name, i)  # refuses a prior made from another episode
             if heat.shape[0] != T:
-                raise ValueError(f"prior {name!r} of episode {i} has {heat.shape[0]} frames, the episode {T}")
+                raise UsageError(f"prior {name!r} of episode {i} has {heat.shape[0]} frames, the episode {T}")
             d, ok = patch_distribution(heat, geometry, valid, eps=eps)
             dists.append(d)
             valids.append(ok)

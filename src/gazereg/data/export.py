@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from gazereg.data.errors import DataExportError
+from gazereg.data.errors import ExportUsageError
 from gazereg.data.formats.lerobot_v3.export import export_priors_lerobot
 from gazereg.runtime.config import parse
 
@@ -37,7 +37,7 @@ def parse_episode_map(items: Sequence[str]) -> dict[int, int] | None:
     try:
         return {int(a): int(b) for a, b in (p.split("=", 1) for p in items)}
     except ValueError as e:
-        raise DataExportError(
+        raise ExportUsageError(
             f"--episode-map entries must be store_index=episode_index, got {tuple(items)}"
         ) from e
 

@@ -12,15 +12,16 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
-from gazereg.data.errors import DataImportError
-from gazereg.data.store import Episode, EpisodeStore
+from gazereg.data.errors import DataImportError, ImportUsageError
+from gazereg.data.store import Episode, EpisodeStore, describe_non_finite
+from gazereg.runtime.io import sweep_stale_temps
 
 
 @dataclass
@@ -49,7 +50,9 @@ def rotated_cameras(
     names = [c.strip() for c in spec.split(",") if c.strip()]
     unknown = [c for c in names if c not in cameras]
     if unknown:
-        raise DataImportError(f"rotate180 names camera(s) {unknown} that are not imported{where} ({cameras})")
+        raise ImportUsageError(
+            f"rotate180 names camera(s) {unknown} that are not imported{where} ({cameras})"
+        )
     return names
 
 
@@ -68,6 +71,17 @@ def recorded_gaze(points: np.ndarray, what: str, rotate180: bool = False) -> tup
     return uv, valid
 
 
+def check_finite(arr: np.ndarray, what: str, name: str, keep: Collection[str] = ()) -> np.ndarray:
+    """`arr` as it is when its values are finite or `name` is in `keep` (the importer's `nonfinite_ok`
+    option); else a DataImportError naming `what`, the number of NaN/inf values and the first one's row."""
+    problem = None if name in keep else describe_non_finite(arr)
+    if problem is not None:
+        raise DataImportError(
+            f"{what} has {problem} (corrupt data?); pass --nonfinite-ok {name} to import it as it is"
+        )
+    return arr
+
+
 def _same_source(stored: dict[str, Any], identity: dict[str, Any]) -> bool:
     return all(stored.get(k) == v for k, v in identity.items() if k not in ("path", "root"))
 
@@ -83,7 +97,9 @@ def write_episodes(
 
     An episode already in the store is skipped when its recorded meta["source"] matches the identity (same
     source format, episode, data set fingerprint and import settings; the path may differ), and refused
-    otherwise, so a resumed import never mixes two data sets or two settings in one store."""
+    otherwise, so a resumed import never mixes two data sets or two settings in one store. Temporaries that
+    killed imports left in the store are removed first."""
+    sweep_stale_temps(store.root)
     imported = skipped = frames = 0
     t0 = time.perf_counter()
     bar = tqdm(total=total, desc=desc, unit="ep", disable=not progress, file=sys.stderr)

@@ -5,35 +5,88 @@ Layout (one folder per episode, plain `.npy` arrays so every array memory-maps w
     <root>/
       store.json                      {"format": "gazereg-episodes", "version": 1}
       episodes/ep_000000/
-        meta.json                     index, length, task, instruction, cameras {name: [H, W]}, extra meta
+        meta.json                     index, length, task, instruction, cameras {name: [H, W]}, fingerprint,
+                                      extra meta
         frames.<camera>.npy           uint8   (T, H, W, 3)  RGB, as the policy sees it (upright)
         state.npy                     float32 (T, S)        proprioception
         action.npy                    float32 (T, A)
         extra.<name>.npy              any     (T, ...)      per-frame simulator facts (e.g. obj_uv.corner2)
       priors/<name>/
-        prior.json                    which source, checkpoint and parameters made them
-        ep_000000.npz                 heatmaps float16 (T, h, w) each summing to 1; valid bool (T,)
+        prior.json                    the manifest: which source, checkpoint and parameters made them (written
+                                      when every episode has its prior; prior.pending.json until then)
+        ep_000000.npz                 heatmaps float16 (T, h, w) each summing to 1; valid bool (T,);
+                                      episode: the fingerprint of the episode it was made from
 
 Episodes and prior files are written to a temporary name and renamed, so a reader (or a resumed job) never
 sees a half-written one: an episode folder exists completely or not at all.
+
+Identity. An episode's `fingerprint` (16 hex digits of the SHA-256 of its arrays' names, dtypes, shapes and
+bytes, its task and its instruction) is computed when it is written, and every prior file records the
+fingerprint of the episode it was made from; `read_prior` refuses a prior whose episode is not the store's
+(a prior copied from another store whose episode lengths happen to match, or an episode rewritten since)
+with a `UsageError` naming the prior file and both fingerprints. Stores written before fingerprints keep
+working: an episode without one gets it computed from its stored arrays when first needed (the same value a
+new write records; it costs one read of the episode), and a prior file without one is used unchecked, with a
+warning that says to recompute it.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import logging
 import re
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_dir, atomic_path, atomic_write_json
+
+log = logging.getLogger(__name__)
 
 FORMAT = "gazereg-episodes"
 VERSION = 1
+PRIOR_MANIFEST = "prior.json"
+PRIOR_PENDING = "prior.pending.json"
 _EP_RE = re.compile(r"^ep_(\d{6})$")
+_PRIOR_RE = re.compile(r"^ep_(\d{6})\.npz$")
+
+
+class MissingPriorError(UsageError, FileNotFoundError):
+    """A prior name the store does not hold (or not completely): a usage mistake about a missing file."""
+
+
+def fingerprint_arrays(arrays: Mapping[str, np.ndarray], task: str, instruction: str) -> str:
+    """16 hex digits of the SHA-256 of an episode's stored arrays (`{file stem: array}`: names, dtypes, shapes
+    and C-order bytes, in name order), its task and its instruction: equal episodes, equal fingerprints."""
+    h = hashlib.sha256(json.dumps([task, instruction]).encode())
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"\n{name}|{a.dtype.str}|{list(a.shape)}\n".encode())
+        h.update(a.reshape(-1).view(np.uint8).data)
+    return h.hexdigest()[:16]
+
+
+def describe_non_finite(arr: np.ndarray) -> str | None:
+    """How many NaN/inf values a (T, ...) array holds and where the first is (row, then the rest of its
+    index), for an error message; None when every value is finite (integer and bool arrays always are)."""
+    a = np.asarray(arr)
+    if a.dtype.kind not in "fc":
+        return None
+    bad = ~np.isfinite(a)
+    if not bad.any():
+        return None
+    first = np.argwhere(bad)[0].tolist() if a.ndim else []
+    where = f"row {first[0]}" if first else "its only value"
+    if len(first) == 2:
+        where += f", column {first[1]}"
+    elif len(first) > 2:
+        where += f", element {tuple(first[1:])}"
+    return f"{int(bad.sum())} NaN/inf value(s), the first at {where} ({a[tuple(first)]})"
 
 
 @dataclass
@@ -71,8 +124,19 @@ class Episode:
             if arr.shape[0] != T:
                 raise ValueError(f"{name!r} has {arr.shape[0]} rows but the episode has {T} actions")
         for name, arr in [("state", self.state), ("action", self.action)]:
-            if arr.ndim != 2 or not np.isfinite(arr).all():
+            if arr.ndim != 2:
                 raise ValueError(f"{name!r} must be a finite 2-D array, got shape {arr.shape}")
+            problem = describe_non_finite(arr)
+            if problem is not None:
+                raise ValueError(f"{name!r} must be finite but has {problem}")
+
+    def stored_arrays(self) -> dict[str, np.ndarray]:
+        """The arrays as the store saves them, by file stem (`frames.<camera>`, state, action, `extra.<name>`)."""
+        arrays = {f"frames.{cam}": np.ascontiguousarray(fr) for cam, fr in self.frames.items()}
+        arrays["state"] = self.state.astype(np.float32)
+        arrays["action"] = self.action.astype(np.float32)
+        arrays.update({f"extra.{name}": np.ascontiguousarray(arr) for name, arr in self.extras.items()})
+        return arrays
 
 
 class EpisodeStore:
@@ -91,6 +155,8 @@ class EpisodeStore:
         if info.get("format") != FORMAT or info.get("version") != VERSION:
             raise ValueError(f"{marker}: unsupported store format {info}")
         (self.root / "episodes").mkdir(parents=True, exist_ok=True)
+        self._fingerprints: dict[int, str] = {}  # episode index -> fingerprint (read or computed once)
+        self._warned_unchecked: set[str] = set()  # prior names whose files carry no episode fingerprint
 
     # ----- episodes -----------------------------------------------------------------------------------
     def _ep_dir(self, index: int) -> Path:
@@ -119,13 +185,11 @@ class EpisodeStore:
         index = self.next_index() if index is None else index
         ep.index = index
         ep.validate()
+        arrays = ep.stored_arrays()
+        fingerprint = fingerprint_arrays(arrays, ep.task, ep.instruction)
         with atomic_dir(self._ep_dir(index)) as tmp:
-            for cam, fr in ep.frames.items():
-                np.save(tmp / f"frames.{cam}.npy", np.ascontiguousarray(fr))
-            np.save(tmp / "state.npy", ep.state.astype(np.float32))
-            np.save(tmp / "action.npy", ep.action.astype(np.float32))
-            for name, arr in ep.extras.items():
-                np.save(tmp / f"extra.{name}.npy", np.ascontiguousarray(arr))
+            for stem, arr in arrays.items():
+                np.save(tmp / f"{stem}.npy", arr)
             meta = {
                 **ep.meta,
                 "index": index,
@@ -133,8 +197,10 @@ class EpisodeStore:
                 "task": ep.task,
                 "instruction": ep.instruction,
                 "cameras": {cam: list(fr.shape[1:3]) for cam, fr in ep.frames.items()},
+                "fingerprint": fingerprint,
             }
             (tmp / "meta.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+        self._fingerprints[index] = fingerprint
         return index
 
     def meta(self, index: int) -> dict[str, Any]:
@@ -142,6 +208,18 @@ class EpisodeStore:
         if not path.exists():
             raise KeyError(f"episode {index} not in store {self.root}")
         return json.loads(path.read_text())
+
+    def episode_fingerprint(self, index: int) -> str:
+        """The episode's fingerprint (module docstring): from meta.json, or computed from the stored arrays for
+        an episode written before fingerprints (once per store object)."""
+        if index not in self._fingerprints:
+            meta = self.meta(index)
+            fingerprint = meta.get("fingerprint")
+            if fingerprint is None:
+                arrays = {p.stem: np.load(p, mmap_mode="r") for p in self._ep_dir(index).glob("*.npy")}
+                fingerprint = fingerprint_arrays(arrays, meta["task"], meta["instruction"])
+            self._fingerprints[index] = str(fingerprint)
+        return self._fingerprints[index]
 
     def read(self, index: int, mmap: bool = True, cameras: list[str] | None = None) -> Episode:
         """Read an episode; arrays are memory-mapped (read-only) unless mmap=False."""
@@ -175,23 +253,60 @@ class EpisodeStore:
         return self.root / "priors" / name
 
     def prior_names(self) -> list[str]:
+        """The priors with a manifest (complete ones)."""
         base = self.root / "priors"
-        return sorted(p.name for p in base.iterdir() if (p / "prior.json").exists()) if base.exists() else []
+        return (
+            sorted(p.name for p in base.iterdir() if (p / PRIOR_MANIFEST).exists()) if base.exists() else []
+        )
+
+    def prior_indices(self, name: str) -> list[int]:
+        """The episodes that have a prior file of `name` (whether or not the prior has its manifest yet)."""
+        d = self.prior_dir(name)
+        found = (_PRIOR_RE.match(p.name) for p in d.iterdir()) if d.is_dir() else iter(())
+        return sorted(int(m.group(1)) for m in found if m)
 
     def write_prior_info(self, name: str, info: dict[str, Any]) -> None:
-        atomic_write_json(self.prior_dir(name) / "prior.json", info)
+        """Write the prior's manifest (prior.json); a pending record, if any, is removed."""
+        atomic_write_json(self.prior_dir(name) / PRIOR_MANIFEST, info)
+        (self.prior_dir(name) / PRIOR_PENDING).unlink(missing_ok=True)
+
+    def write_prior_pending(self, name: str, info: dict[str, Any]) -> None:
+        """Record the settings of a prior being made, until `write_prior_info` writes its manifest."""
+        atomic_write_json(self.prior_dir(name) / PRIOR_PENDING, info)
+
+    def prior_record(self, name: str) -> dict[str, Any] | None:
+        """The settings a prior's files were made with: its manifest, else its pending record, else None."""
+        for fname in (PRIOR_MANIFEST, PRIOR_PENDING):
+            path = self.prior_dir(name) / fname
+            if path.exists():
+                return json.loads(path.read_text())
+        return None
 
     def prior_info(self, name: str) -> dict[str, Any]:
-        path = self.prior_dir(name) / "prior.json"
-        if not path.exists():
-            raise FileNotFoundError(f"no priors named {name!r} in {self.root}; have {self.prior_names()}")
-        return json.loads(path.read_text())
+        """The manifest of a complete prior; `MissingPriorError` (one line) for a name the store lacks or a
+        prior whose `gazereg priors` run has not finished."""
+        path = self.prior_dir(name) / PRIOR_MANIFEST
+        if path.exists():
+            return json.loads(path.read_text())
+        if (self.prior_dir(name) / PRIOR_PENDING).exists():
+            done, n = len(self.prior_indices(name)), len(self.indices())
+            raise MissingPriorError(
+                f"priors {name!r} in {self.root} are incomplete ({done} of {n} episodes done): "
+                "their `gazereg priors` run did not finish; rerun it"
+            )
+        raise MissingPriorError(
+            f"no priors named {name!r} in {self.root}; it has {', '.join(self.prior_names()) or 'none'}"
+        )
 
     def has_prior(self, name: str, index: int) -> bool:
-        return (self.prior_dir(name) / f"ep_{index:06d}.npz").exists()
+        return self._prior_path(name, index).exists()
+
+    def _prior_path(self, name: str, index: int) -> Path:
+        return self.prior_dir(name) / f"ep_{index:06d}.npz"
 
     def write_prior(self, name: str, index: int, heatmaps: np.ndarray, valid: np.ndarray) -> None:
-        """Store an episode's priors: heatmaps (T, h, w) summing to 1 per valid frame, valid (T,) bool."""
+        """Store an episode's priors: heatmaps (T, h, w) summing to 1 per valid frame, valid (T,) bool; the
+        file records the episode's fingerprint."""
         T = self.meta(index)["length"]
         if heatmaps.ndim != 3 or heatmaps.shape[0] != T or valid.shape != (T,):
             raise ValueError(
@@ -199,16 +314,46 @@ class EpisodeStore:
             )
         if not np.isfinite(heatmaps).all() or (heatmaps < 0).any():
             raise ValueError(f"priors for episode {index} contain NaN, inf or negative values")
-        with atomic_path(self.prior_dir(name) / f"ep_{index:06d}.npz") as tmp, open(tmp, "wb") as f:
-            np.savez(f, heatmaps=heatmaps.astype(np.float16), valid=valid.astype(bool))
+        episode = np.array(self.episode_fingerprint(index))
+        with atomic_path(self._prior_path(name, index)) as tmp, open(tmp, "wb") as f:
+            np.savez(f, heatmaps=heatmaps.astype(np.float16), valid=valid.astype(bool), episode=episode)
+
+    def check_prior(self, name: str, index: int) -> None:
+        """Refuse (`UsageError`) a prior file made from another episode than the store's episode `index`."""
+        path = self._prior_path(name, index)
+        with np.load(path) as z:
+            made_from = str(z["episode"]) if "episode" in z.files else None
+        self._check_made_from(name, index, made_from)
+
+    def _check_made_from(self, name: str, index: int, made_from: str | None) -> None:
+        if made_from is None:
+            if name not in self._warned_unchecked:
+                self._warned_unchecked.add(name)
+                log.warning(
+                    "priors %r in %s predate episode fingerprints, so nothing checks that they were made from "
+                    "this store's episodes; recompute them (gazereg priors --overwrite) to record it",
+                    name,
+                    self.root,
+                )
+            return
+        have = self.episode_fingerprint(index)
+        if made_from != have:
+            raise UsageError(
+                f"prior {self._prior_path(name, index)} was made from an episode with fingerprint {made_from}, "
+                f"but episode {index} of store {self.root} has fingerprint {have}: the prior belongs to another "
+                f"store (or the episode was rewritten since); recompute it with `gazereg priors --overwrite`"
+            )
 
     def read_prior(self, name: str, index: int) -> tuple[np.ndarray, np.ndarray]:
-        """Returns heatmaps float32 (T, h, w) and valid bool (T,)."""
-        path = self.prior_dir(name) / f"ep_{index:06d}.npz"
+        """Returns heatmaps float32 (T, h, w) and valid bool (T,); a prior made from another episode than
+        this store's is refused (`UsageError`, see the module docstring)."""
+        path = self._prior_path(name, index)
         if not path.exists():
             raise FileNotFoundError(f"no {name!r} prior for episode {index} in {self.root}")
         with np.load(path) as z:
             heat, valid = z["heatmaps"].astype(np.float32), z["valid"].astype(bool)
+            made_from = str(z["episode"]) if "episode" in z.files else None
+        self._check_made_from(name, index, made_from)
         # float16 storage rounds each cell; renormalise so every valid frame sums to 1 exactly again.
         total = heat.sum(axis=(1, 2), keepdims=True)
         valid &= total[:, 0, 0] > 0

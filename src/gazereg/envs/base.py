@@ -23,10 +23,11 @@ import numpy as np
 from gazereg.data.store import Episode
 from gazereg.envs.camera import CameraGeometry
 from gazereg.envs.perturbations import Perturbation
+from gazereg.runtime.errors import UsageError
 
 
-class UnknownSimulator(ValueError):
-    """A simulator name that is not registered."""
+class UnknownSimulator(UsageError):
+    """A simulator name that is not registered (a user mistake: `gazereg` exits 2 naming the registered ones)."""
 
 
 class Env(Protocol):

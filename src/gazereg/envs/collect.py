@@ -63,14 +63,17 @@ from gazereg.envs.collect_config import (
     episode_index,
     fingerprint,
     resolve,
-    validate,
 )
 from gazereg.runtime.config import parse, save_config
-from gazereg.runtime.io import atomic_write_json
+from gazereg.runtime.io import atomic_write_json, sweep_stale_temps
 from gazereg.runtime.pool import ResumeLog, WorkerPool, available_cores
 
 MAX_WORKER_ENVS = 8  # environments one worker keeps (a LIBERO suite's tasks would not fit in memory)
 SINGLE_THREADED = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+
+
+class CollectionIncomplete(RuntimeError):
+    """A collection that ran but left some task with fewer successful episodes than asked for."""
 
 
 @dataclass(frozen=True)
@@ -296,9 +299,11 @@ def _run(cfg: CollectConfig, scheduler: Scheduler, attempts: ResumeLog, workers:
 
 
 def collect(cfg: CollectConfig) -> CollectReport:
-    """Run a collection (resuming a previous one in the same store); returns the report (also on disk)."""
+    """Run a collection (resuming a previous one in the same store); returns the report (also on disk).
+    The settings were checked when `cfg` was built; `resolve` checks what the simulator refuses. Temporaries
+    that killed writers left in the store are removed first."""
     cfg = resolve(cfg)
-    validate(cfg)
+    sweep_stale_temps(cfg.out)
     store = EpisodeStore(cfg.out, create=True)
     log_dir = Path(cfg.out) / "collect"
     save_config(cfg, log_dir / "config.json")
@@ -342,11 +347,7 @@ def _split_lists(argv: Sequence[str], options: Sequence[str] = ("--tasks", "--ca
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     cfg = parse(PRESETS, _split_lists(argv), prog="gazereg collect", description=__doc__.split("\n\n")[0])
-    try:
-        report = collect(cfg)
-    except CollectError as e:
-        print(f"gazereg collect: {e}", file=sys.stderr)
-        return 2
+    report = collect(cfg)
     d = report.to_dict()
     print(
         f"collected {report.new_episodes} new episodes ({report.new_frames} frames) in {report.seconds:.1f} s "
@@ -358,12 +359,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             line += f"; failed seeds: {', '.join(r['failed_seeds'])}"
         print(line)
     if not report.complete:
-        print(
+        raise CollectionIncomplete(
             "some tasks have fewer episodes than asked for: raise --max-failures or --max-steps "
-            f"(details: {Path(cfg.out) / 'collect' / 'report.json'})",
-            file=sys.stderr,
+            f"(details: {Path(cfg.out) / 'collect' / 'report.json'})"
         )
-        return 1
     return 0
 
 

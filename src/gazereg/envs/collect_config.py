@@ -1,7 +1,7 @@
 """What `gazereg collect` runs: its settings, presets, their checks, and what fixes an episode's index.
 
+CollectConfig(episodes=0)                            # UsageError: --episodes must be an integer >= 1, got 0
 cfg = resolve(CollectConfig(tasks=("reach-v3",)))   # the simulator's defaults filled in, tasks canonical
-validate(cfg)                                         # CollectError naming what is wrong
 fingerprint(cfg)                                      # changes with the settings that change an episode
 episode_index(slot=1, seed=5, seed_base=0)            # 1005
 """
@@ -13,8 +13,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from gazereg.envs.base import UnknownSimulator, make_collector
+from gazereg.envs.base import UnknownSimulator, make_collector, simulator
 from gazereg.envs.perturbations import parse_perturbation
+from gazereg.runtime.config import Validated, option, require_number
+from gazereg.runtime.errors import UsageError
 from gazereg.runtime.pool import fingerprint_json
 
 INDEX_STRIDE = 1000  # episode indices per task slot
@@ -23,13 +25,15 @@ MAX_INDEX = 999_999  # the store names episodes with 6 digits
 FINGERPRINT_FIELDS = ("cameras", "image_size", "action_noise", "max_steps", "goal_marker_radius")
 
 
-class CollectError(ValueError):
+class CollectError(UsageError):
     """A collection that cannot run as configured (unknown task, a store made with other settings, ...)."""
 
 
 @dataclass(frozen=True)
-class CollectConfig:
-    """Expert demonstrations in simulation (Meta-World or LIBERO), written to an episode store."""
+class CollectConfig(Validated):
+    """Expert demonstrations in simulation (Meta-World or LIBERO), written to an episode store.
+
+    Checked when built (`validate`); what needs the simulator (task names, its step limit) when resolved."""
 
     out: Path = Path("runs/quick/demos")
     """The episode store (created if missing)."""
@@ -64,6 +68,40 @@ class CollectConfig:
     """Show a progress bar."""
     env: Literal["metaworld", "libero"] = "metaworld"
     """Simulator: metaworld, or libero (needs the LIBERO venv: bash scripts/libero_env.sh gazereg collect ...)."""
+
+    def validate(self, prefix: str) -> None:
+        """UsageError (CollectError for names) naming the first bad option, as `gazereg collect` spells it."""
+        try:
+            simulator(self.env)
+        except UnknownSimulator as e:
+            raise CollectError(f"{option(prefix + 'env')}: {e}") from None
+        for name in ("tasks", "cameras"):
+            values = tuple(getattr(self, name))
+            twice = sorted({v for v in values if values.count(v) > 1})
+            if twice:
+                raise CollectError(
+                    f"{option(prefix + name)} lists {', '.join(map(repr, twice))} more than once"
+                )
+        if not self.tasks:
+            raise CollectError(f"{option(prefix + 'tasks')} is empty: give at least one task")
+        require_number(self.episodes, prefix + "episodes", 1, INDEX_STRIDE, integer=True)
+        require_number(
+            self.max_failures, prefix + "max_failures", 0, INDEX_STRIDE - self.episodes, integer=True
+        )
+        for name in ("seed_base", "max_steps", "workers"):
+            require_number(getattr(self, name), prefix + name, 0, integer=True)
+        require_number(self.image_size, prefix + "image_size", 8, integer=True)
+        require_number(self.action_noise, prefix + "action_noise", 0)
+        require_number(self.goal_marker_radius, prefix + "goal_marker_radius", 0)
+        if self.perturbation:
+            flag = option(prefix + "perturbation")
+            if self.env != "metaworld":
+                raise CollectError(f"{flag} {self.perturbation!r}: only the metaworld simulator renders one")
+            try:
+                parse_perturbation(self.perturbation)
+            except (KeyError, ValueError) as e:
+                reason = e.args[0] if e.args else str(e)
+                raise CollectError(f"{flag} {self.perturbation!r}: {reason}") from None
 
 
 PRESETS = {
@@ -116,43 +154,24 @@ def episode_index(slot: int, seed: int, seed_base: int) -> int:
 
 
 def resolve(cfg: CollectConfig) -> CollectConfig:
-    """Fill the simulator's defaults (cameras, max_steps) and canonical task names; CollectError if invalid."""
+    """Fill the simulator's defaults (cameras, max_steps) and canonical task names; CollectError names the
+    option the simulator refuses (an unknown task, more steps than it allows, a simulator not installed)."""
     try:
         sim = make_collector(cfg.env)
-        tasks = sim.tasks(cfg.tasks)
-    except UnknownSimulator as e:
-        raise CollectError(str(e)) from None
     except (KeyError, ValueError) as e:
-        raise CollectError(str(e.args[0]) if e.args else str(e)) from None
+        raise CollectError(f"{option('env')} {cfg.env}: {e.args[0] if e.args else e}") from None
+    try:
+        tasks = sim.tasks(cfg.tasks)
+    except (KeyError, ValueError) as e:
+        raise CollectError(f"{option('tasks')}: {e.args[0] if e.args else e}") from None
+    if len(tasks) * INDEX_STRIDE - 1 > MAX_INDEX:
+        raise CollectError(f"{option('tasks')}: at most {(MAX_INDEX + 1) // INDEX_STRIDE} tasks per store")
+    limit = sim.max_steps_limit
+    if cfg.max_steps > limit:
+        raise CollectError(f"{option('max_steps')} must be <= {limit} for {cfg.env}, got {cfg.max_steps}")
     return dataclasses.replace(
         cfg,
         tasks=tasks,
         cameras=tuple(cfg.cameras) or sim.default_cameras,
         max_steps=cfg.max_steps or sim.default_max_steps,
     )
-
-
-def validate(cfg: CollectConfig) -> None:
-    """Check a resolved config (see `resolve`); CollectError names the problem."""
-    limit = make_collector(cfg.env).max_steps_limit
-    if not cfg.tasks:
-        raise CollectError("no tasks given")
-    if len(set(cfg.tasks)) != len(cfg.tasks):
-        raise CollectError(f"duplicate tasks in {cfg.tasks}")
-    if cfg.episodes < 1 or cfg.max_failures < 0 or cfg.episodes + cfg.max_failures > INDEX_STRIDE:
-        raise CollectError(f"need 1 <= episodes and episodes + max_failures <= {INDEX_STRIDE}")
-    if len(cfg.tasks) * INDEX_STRIDE - 1 > MAX_INDEX:
-        raise CollectError(f"at most {(MAX_INDEX + 1) // INDEX_STRIDE} tasks per store")
-    if cfg.seed_base < 0:
-        raise CollectError("seed_base must be >= 0")
-    if not 1 <= cfg.max_steps <= limit:
-        raise CollectError(f"max_steps must be in [1, {limit}]")
-    if cfg.image_size < 8 or not cfg.cameras:
-        raise CollectError("need at least one camera and image_size >= 8")
-    if cfg.perturbation:
-        if cfg.env != "metaworld":
-            raise CollectError(f"perturbation={cfg.perturbation!r}: only the metaworld simulator renders one")
-        try:
-            parse_perturbation(cfg.perturbation)
-        except (KeyError, ValueError) as e:
-            raise CollectError(f"perturbation={cfg.perturbation!r}: {e}") from None

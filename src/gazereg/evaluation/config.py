@@ -2,6 +2,7 @@
 
 cfg = presets()["quick"]()                       # 10 episodes per task: clean, dim:0.7, gaussian_noise:0.5
 arms = parse_checkpoints(("baseline=runs/a/final", "runs/b/final"))   # {"baseline": ..., "final": ...}
+EvalConfig(episodes=0)                           # UsageError: --episodes must be an integer >= 1, got 0
 """
 
 from __future__ import annotations
@@ -11,6 +12,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
+
+from gazereg.envs.base import UnknownSimulator, simulator
+from gazereg.envs.perturbations import parse_perturbation
+from gazereg.runtime.config import Validated, option, require_number
+from gazereg.runtime.errors import UsageError
 
 # The full robustness sweep: each lighting perturbation and several sensor-noise levels.
 ROBUSTNESS_CONDITIONS = (
@@ -26,7 +32,11 @@ ROBUSTNESS_CONDITIONS = (
 
 
 @dataclass(frozen=True)
-class EvalConfig:
+class EvalConfig(Validated):
+    """Checked when built (`validate`): counts in range, tasks and conditions given once each, every condition
+    a perturbation spec, a registered simulator. Whether the checkpoints exist is checked when an evaluation
+    starts (`parse_checkpoints`)."""
+
     checkpoints: tuple[str, ...] = ()
     """policies to evaluate: NAME=DIR or DIR (named after the folder)"""
     tasks: tuple[str, ...] = ("reach-v3",)
@@ -46,6 +56,36 @@ class EvalConfig:
     env: Literal["metaworld", "libero"] = "metaworld"
     """simulator: metaworld (tasks are Meta-World task names) or libero (tasks are suites such as
     libero_spatial or single tasks such as libero_spatial/3; needs the LIBERO extra: scripts/libero_env.sh)"""
+
+    def validate(self, prefix: str) -> None:
+        """UsageError naming the first bad option (`prefix`: "" for `gazereg eval`, "eval." in an experiment)."""
+        for name, low in (
+            ("episodes", 1),
+            ("max_steps", 1),
+            ("workers", 1),
+            ("videos", 0),
+            ("seed_start", 0),
+        ):
+            require_number(getattr(self, name), prefix + name, low, integer=True)
+        for name in ("tasks", "conditions"):
+            values = tuple(getattr(self, name))
+            if not values:
+                raise UsageError(f"{option(prefix + name)} is empty: give at least one")
+            twice = sorted({v for v in values if values.count(v) > 1})
+            if twice:
+                raise UsageError(
+                    f"{option(prefix + name)} lists {', '.join(map(repr, twice))} more than once"
+                )
+        for condition in self.conditions:
+            try:
+                parse_perturbation(condition)
+            except (KeyError, ValueError) as e:
+                reason = e.args[0] if e.args else str(e)
+                raise UsageError(f"{option(prefix + 'conditions')}: {condition!r}: {reason}") from None
+        try:
+            simulator(self.env)
+        except UnknownSimulator as e:
+            raise UsageError(f"{option(prefix + 'env')}: {e}") from None
 
 
 def presets() -> dict[str, Callable[[], EvalConfig]]:
@@ -73,19 +113,19 @@ def presets() -> dict[str, Callable[[], EvalConfig]]:
     }
 
 
-def parse_checkpoints(items: Sequence[str]) -> dict[str, Path]:
-    """NAME=DIR or DIR (named after the folder) -> {name: folder}; errors for duplicates, folders that are not
-    saved policies (no config.json) and an empty list."""
+def parse_checkpoints(items: Sequence[str], option: str = "--checkpoints") -> dict[str, Path]:
+    """NAME=DIR or DIR (named after the folder) -> {name: folder}; UsageError (naming `option`) for
+    duplicates, folders that do not exist or are not saved policies (no config.json) and an empty list."""
     arms: dict[str, Path] = {}
     for item in items:
         name, _, path = item.rpartition("=") if "=" in item else (Path(item).name, "", item)
         if name in arms:
-            raise ValueError(f"two checkpoints named {name!r}; name them NAME=DIR")
+            raise UsageError(f"{option}: two checkpoints named {name!r}; name them NAME=DIR")
+        if not Path(path).is_dir():
+            raise UsageError(f"{option}: checkpoint {path!r} ({name}) does not exist")
         if not (Path(path) / "config.json").exists():
-            raise FileNotFoundError(
-                f"checkpoint {path!r} ({name}) is not a saved policy folder (no config.json)"
-            )
+            raise UsageError(f"{option}: {path!r} ({name}) is not a saved policy folder (no config.json)")
         arms[name] = Path(path)
     if not arms:
-        raise ValueError("no checkpoints to evaluate: pass --checkpoints NAME=DIR ...")
+        raise UsageError(f"no checkpoints to evaluate: pass {option} NAME=DIR ...")
     return arms

@@ -43,7 +43,7 @@ from gazereg.evaluation.summary import format_table, summarize
 from gazereg.patches import grid_to_image
 from gazereg.policies import load_policy
 from gazereg.runtime.config import parse, to_dict
-from gazereg.runtime.io import atomic_write_json
+from gazereg.runtime.io import atomic_write_json, sweep_stale_temps
 from gazereg.runtime.pool import ResumeLog, Worker, WorkerPool, fingerprint_files
 from gazereg.viz.overlay import overlay, write_gif
 
@@ -68,7 +68,7 @@ class RolloutWorker:
 
     def __init__(self, max_steps: int, gl_backend: str | None, env: str = "metaworld"):
         torch.set_num_threads(1)
-        simulator(env)  # UnknownSimulator (a ValueError) names the registered ones
+        simulator(env)  # UnknownSimulator (a UsageError) names the registered ones
         self.max_steps, self.gl_backend, self.env_kind = max_steps, gl_backend, env
         self.policies: dict[str, Any] = {}
         self.envs: dict[tuple[str, str, tuple[str, ...], tuple[int, int]], Env] = {}
@@ -223,10 +223,13 @@ def run_jobs(
 
 
 def evaluate(cfg: EvalConfig, progress: bool = True) -> dict[str, Any]:
-    """Evaluate every checkpoint; writes and returns the evaluation record (eval_info.json)."""
+    """Evaluate every checkpoint; writes and returns the evaluation record (eval_info.json). Checkpoints that
+    are not saved policies are refused first (`parse_checkpoints`: UsageError naming --checkpoints), then the
+    temporaries that killed writers left in `cfg.out` are removed."""
     arms = parse_checkpoints(cfg.checkpoints)
     jobs = make_jobs(cfg, arms)
     out = Path(cfg.out)
+    sweep_stale_temps(out)
     records = run_jobs(jobs, cfg, progress, log_path=out / "episodes.jsonl")
     info = {
         "config": to_dict(cfg),

@@ -1,4 +1,9 @@
-"""The experiment's configuration: what an arm is, and the named presets (smoke, quick, paper, full)."""
+"""The experiment's configuration: what an arm is, and the named presets (smoke, quick, paper, full).
+
+An `ExperimentConfig` checks its options when it is built, its nested `train` and `eval` configs theirs
+(`gazereg.runtime.config.Validated`): a bad value is a UsageError naming the option as typed, e.g.
+`--arms: unknown arm 'nosuch'; choose from ...` or `--eval.episodes must be an integer >= 1, got 0`.
+"""
 
 from __future__ import annotations
 
@@ -15,14 +20,15 @@ from gazereg.gaze.sources.perturbed import PerturbedParams
 from gazereg.gaze.sources.simple import SaliencyParams, UniformParams
 from gazereg.gaze.sources.visuomotor import VisuomotorParams
 from gazereg.report.build import ReportSpec
-from gazereg.runtime.config import to_dict
+from gazereg.runtime.config import Validated, option, require_number, to_dict
+from gazereg.runtime.errors import UsageError
 from gazereg.training.config import DataConfig, GazeConfig, OptimConfig, TrainConfig
 from gazereg.training.config import quick as quick_train
 from gazereg.training.config import smoke as smoke_train
 
 
 @dataclass(frozen=True)
-class ExperimentConfig:
+class ExperimentConfig(Validated):
     out: Path = Path("runs/experiment")
     tasks: tuple[str, ...] = ("reach-v3", "button-press-topdown-v3")
     camera: str = "corner2"
@@ -59,6 +65,47 @@ class ExperimentConfig:
     threshold: float = 0.5
     """success rate whose first crossing is reported as 'steps to threshold'"""
     figure_frames: int = 4
+
+    def validate(self, prefix: str) -> None:
+        """UsageError naming the first bad option (the nested train and eval configs check their own)."""
+        for name in ("tasks", "arms", "train_seeds"):
+            values = tuple(getattr(self, name))
+            if not values:
+                raise UsageError(f"{option(prefix + name)} is empty: give at least one")
+            twice = sorted({str(v) for v in values if values.count(v) > 1})
+            if twice:
+                raise UsageError(f"{option(prefix + name)} lists {', '.join(twice)} more than once")
+        unknown = [a for a in self.arms if a not in ARMS]
+        if unknown:
+            raise UsageError(
+                f"{option(prefix + 'arms')}: unknown arm {unknown[0]!r}; choose from {', '.join(ARMS)}"
+            )
+        for seed in self.train_seeds:
+            require_number(seed, prefix + "train_seeds", integer=True)
+        least = {
+            "image_size": 8,
+            "demos_per_task": 1,
+            "heldout_per_task": 1,
+            "collect_workers": 0,
+            "glc_demos_per_task": 1,
+            "glc_steps": 1,
+            "parallel": 1,
+            "threads_per_run": 1,
+            "convergence_points": 1,
+            "convergence_episodes": 1,
+            "figure_frames": 1,
+        }
+        for name, low in least.items():
+            require_number(getattr(self, name), prefix + name, low, integer=True)
+        if len(self.prior_size) != 2:
+            raise UsageError(
+                f"{option(prefix + 'prior_size')} takes two sizes (height width), got {self.prior_size}"
+            )
+        for side in self.prior_size:
+            require_number(side, prefix + "prior_size", 1, integer=True)
+        require_number(self.threshold, prefix + "threshold", 0, 1, open_low=True, open_high=True)
+        if not self.camera:
+            raise UsageError(f"{option(prefix + 'camera')} is empty: name the camera")
 
 
 EXECUTION_KEYS = (

@@ -55,18 +55,14 @@ from gazereg.report.build import StageOutputs, build_report, write_report
 from gazereg.report.figures import attention_panels, plot_attention
 from gazereg.report.ids import RunId
 from gazereg.runtime.clock import ResumableClock
-from gazereg.runtime.config import config_diff, parse, save_config, split_preset, to_dict
-from gazereg.runtime.io import atomic_write_json
+from gazereg.runtime.config import check_same_config, parse, save_config, split_preset
+from gazereg.runtime.io import atomic_write_json, sweep_stale_temps
 from gazereg.training.checkpoint import latest_checkpoint, list_checkpoints
 from gazereg.training.config import TrainConfig
 from gazereg.training.glc_store import GLCStoreTrainConfig, train_glc_on_store
 from gazereg.training.loop import train
 
 log = logging.getLogger(__name__)
-
-
-class ConfigMismatch(ValueError):
-    """The run folder holds stages made with another configuration (see `Experiment.check_resumable`)."""
 
 
 STAGES = ("demos", "priors", "train", "eval", "converge", "align", "report")
@@ -99,18 +95,18 @@ class Experiment:
         saved = self.out / "config.json"
         if not saved.exists():
             return
-        ignore = ("out", *EXECUTION_KEYS)
-        diff = config_diff(json.loads(saved.read_text()), json.loads(json.dumps(to_dict(self.cfg))), ignore)
-        if diff:
-            changes = ", ".join(f"{k}: {a!r} -> {b!r}" for k, (a, b) in diff.items())
-            raise ConfigMismatch(
-                f"{self.out} holds a run with another configuration ({changes}); its finished stages would be "
-                "reused. Choose another --out, or delete the folder to start over."
-            )
+        check_same_config(
+            json.loads(saved.read_text()),
+            self.cfg,
+            ("out", *EXECUTION_KEYS),
+            self.out,
+            "its finished stages would be reused. Choose another --out, or delete the folder to start over.",
+        )
 
     def run(self) -> dict[str, Any]:
         self.check_resumable()
         self.out.mkdir(parents=True, exist_ok=True)
+        sweep_stale_temps(self.out)  # what killed writers of an earlier attempt left
         save_config(self.cfg, self.out / "config.json")
         results: dict[str, Any] = {}
         for stage in STAGES:
@@ -367,11 +363,7 @@ def main(argv: list[str] | None = None) -> int:
     preset, _ = split_preset(args, "quick")
     cfg = parse(PRESETS, args, prog="gazereg experiment", description=__doc__ or "")
     t0 = time.perf_counter()
-    try:
-        Experiment(cfg, preset).run()
-    except ConfigMismatch as e:
-        print(f"gazereg experiment: {e}", file=sys.stderr)
-        return 2
+    Experiment(cfg, preset).run()
     print((Path(cfg.out) / "report.md").read_text())
     print(
         f"experiment finished in {(time.perf_counter() - t0) / 60:.1f} min; report: {Path(cfg.out) / 'report.md'}"

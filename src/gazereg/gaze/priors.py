@@ -4,9 +4,12 @@
     gazereg priors --store data/demos --source glc --source-params checkpoint=runs/glc/final
     accelerate launch --num_processes 2 -m gazereg.gaze.priors --store ...   (episodes sharded by rank)
 
-Priors are computed once, offline; training reads them and maps them onto its patch grid. Each run records
-its source, parameters and aggregation in `priors/<name>/prior.json`; episodes already done are skipped, so
-an interrupted run resumes, and a rerun with different settings under the same name is refused.
+Priors are computed once, offline; training reads them and maps them onto its patch grid. The inputs (the
+source and its parameters, the camera, the size) are checked before anything is written. A run records its
+source, parameters and aggregation in `priors/<name>/prior.pending.json` while it works and in the manifest
+`priors/<name>/prior.json` once every episode of the store has its prior (the manifest is written last, so a
+failed run leaves no manifest behind). Episodes already done are skipped, so an interrupted run resumes, and a
+rerun with different settings under the same name is refused while files made with the old ones exist.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from gazereg.data.store import EpisodeStore
+from gazereg.data.store import PRIOR_MANIFEST, EpisodeStore
 from gazereg.gaze.aggregation import AggregationConfig, aggregate
 from gazereg.gaze.sources import (
     GazeSource,
@@ -31,6 +34,8 @@ from gazereg.gaze.sources import (
     parse_source_params,
 )
 from gazereg.runtime.config import parse
+from gazereg.runtime.errors import UsageError, report_errors, split_verbose
+from gazereg.runtime.io import sweep_stale_temps
 from gazereg.runtime.version import __version__
 
 log = logging.getLogger(__name__)
@@ -89,8 +94,41 @@ def prior_record(source: GazeSource, cfg: PriorsConfig) -> dict[str, Any]:
     }
 
 
+def _settings_differ(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
+    """The settings (keys of `new`, the version aside) whose stored value is not the requested one."""
+    return [k for k in new if k != "gazereg_version" and old.get(k) != new[k]]
+
+
+def check_inputs(store: EpisodeStore, cfg: PriorsConfig, name: str, record: dict[str, Any]) -> None:
+    """Refuse (`UsageError`, before anything is written) an empty store, a camera some episode lacks, a bad
+    size, and settings that differ from those the prior's existing files were made with (unless overwrite)."""
+    if not store.indices():
+        raise UsageError(f"store {store.root} has no episodes to make priors for")
+    if len(cfg.size) != 2 or min(cfg.size) < 1:
+        raise UsageError(f"--size must be two positive numbers (h, w), got {tuple(cfg.size)}")
+    for i in store.indices():
+        cameras = store.meta(i)["cameras"]
+        if cfg.camera not in cameras:
+            raise UsageError(
+                f"--camera {cfg.camera!r}: episode {i} of store {store.root} has no such camera; "
+                f"it has {', '.join(sorted(cameras))}"
+            )
+    old = store.prior_record(name)
+    if old is None or cfg.overwrite or not store.prior_indices(name):
+        return
+    differ = _settings_differ(old, record)
+    if differ:
+        shown = "; ".join(f"{k}: stored {old.get(k)!r}, requested {record[k]!r}" for k in differ)
+        raise UsageError(
+            f"priors {name!r} in {store.root} were made with other settings ({shown}); use --overwrite to "
+            "recompute them or --name to store these separately"
+        )
+
+
 def make_priors(cfg: PriorsConfig, rank: int = 0, world: int = 1, progress: bool = True) -> str:
-    """Compute and store priors for every episode of the store (this process's shard); returns the name."""
+    """Compute and store priors for every episode of the store (this process's shard); returns the name.
+
+    The process that finds every episode done writes the manifest (prior.json), last."""
     store = EpisodeStore(cfg.store)
     params = cfg.source if isinstance(cfg.source, GazeSourceParams) else gaze_source_params(cfg.source)
     source = make_gaze_source(params)
@@ -98,22 +136,18 @@ def make_priors(cfg: PriorsConfig, rank: int = 0, world: int = 1, progress: bool
         source.bind(store)
     name = cfg.name or params.name
     record = prior_record(source, cfg)
-    existing = store.prior_dir(name) / "prior.json"
-    if existing.exists() and not cfg.overwrite:
-        old = store.prior_info(name)
-        if {k: old.get(k) for k in record if k != "gazereg_version"} != {
-            k: v for k, v in record.items() if k != "gazereg_version"
-        }:
-            raise ValueError(
-                f"priors {name!r} in {store.root} were made with other settings:\n  stored:    {old}\n  requested: {record}\n"
-                "use --overwrite to recompute them or --name to store these separately"
-            )
-    if rank == 0:
-        store.write_prior_info(name, record)
-    todo = [
-        i for i in store.indices() if i % world == rank and (cfg.overwrite or not store.has_prior(name, i))
-    ]
-    skipped = len(store.indices()) // max(world, 1) - len(todo)
+    check_inputs(store, cfg, name, record)
+    sweep_stale_temps(store.prior_dir(name))
+    old = store.prior_record(name)
+    if rank == 0 and (cfg.overwrite or old is None or _settings_differ(old, record)):
+        (store.prior_dir(name) / PRIOR_MANIFEST).unlink(missing_ok=True)
+        store.write_prior_pending(name, record)
+    indices = store.indices()
+    todo = [i for i in indices if i % world == rank and (cfg.overwrite or not store.has_prior(name, i))]
+    for i in indices:  # the files kept must have been made from this store's episodes
+        if i % world == rank and i not in todo:
+            store.check_prior(name, i)
+    skipped = len(indices) // max(world, 1) - len(todo)
     if skipped > 0:
         log.info("priors %s: %d episodes already done, skipping them", name, skipped)
     for i in tqdm(todo, desc=f"priors[{name}]", disable=not progress or not todo):
@@ -121,6 +155,8 @@ def make_priors(cfg: PriorsConfig, rank: int = 0, world: int = 1, progress: bool
         heat, valid = source(ep, cfg.camera, tuple(cfg.size))
         agg, ok = aggregate(heat, valid, cfg.aggregation)
         store.write_prior(name, i, agg.numpy(), ok.numpy())
+    if all(store.has_prior(name, i) for i in indices):
+        store.write_prior_info(name, record)
     return name
 
 
@@ -132,11 +168,7 @@ def main(argv: list[str] | None = None) -> int:
         prog="gazereg priors",
         description=__doc__ or "",
     )
-    try:
-        cfg = command.config()
-    except (KeyError, ValueError, TypeError) as e:
-        print(f"gazereg priors: {e}", file=sys.stderr)
-        return 2
+    cfg = command.config()  # bad source names and parameters are UsageErrors (the gazereg CLI reports them)
     # `accelerate launch` / torchrun set these; each process takes every world-th episode (no sync needed).
     rank, world = int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1))
     name = make_priors(cfg, rank=rank, world=world, progress=rank == 0)
@@ -145,5 +177,8 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+if (
+    __name__ == "__main__"
+):  # `accelerate launch -m gazereg.gaze.priors`: errors end as one line, as in `gazereg`
+    _argv, _verbose = split_verbose(sys.argv[1:])
+    raise SystemExit(report_errors("gazereg priors", main, _argv, _verbose))

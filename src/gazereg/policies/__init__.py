@@ -1,4 +1,5 @@
-"""Policies: the Policy interface (`base`), the registry and factories (`registry`), the reference VLA (`vla`).
+"""Policies: the Policy interface (`base`), the registry and factories (`registry`), policies of installed
+packages (`plugins`, entry-point group `gazereg.policies`), the reference VLA (`vla`).
 
     from gazereg.policies import Policy, PolicyConfig, register_policy, make_policy, load_policy
 

@@ -5,11 +5,16 @@
     load_policy(folder)                        # whichever registered type the folder's config.json names
     policy_config_class("vla")                 # the config class `--policy.type vla` selects
 
-The built-in policies are registered here; another policy registers itself (`register_policy`) before a
-config naming it is parsed or a folder holding it is loaded. Registration is per process: processes that
-only import gazereg (evaluation's spawned workers when `workers > 1`, `accelerate launch -m
-gazereg.training.loop`) know the built-ins only, so run a policy registered elsewhere in processes that
-import the module registering it (or evaluate it with `workers=1`).
+The built-in policies are registered here. Another policy comes in one of two ways:
+
+- as a plugin (the way to ship one): an installed package declares it in the entry-point group
+  `gazereg.policies` (`mypolicy = "my_package.policy:MyPolicy"`, see `gazereg.policies.plugins`); a name
+  nobody registered is looked up there, imported and registered, in whichever process asks for it, so
+  `gazereg train --policy.type mypolicy`, `gazereg eval` and evaluation's spawned workers all know it;
+- registered in code (`register_policy`), before a config naming it is parsed or a folder holding it is
+  loaded. That registration is per process: processes that only import gazereg (evaluation's spawned
+  workers when `workers > 1`, `accelerate launch -m gazereg.training.loop`) do not see it, so a policy
+  registered this way runs only in processes that import the module registering it (or with `workers=1`).
 """
 
 from __future__ import annotations
@@ -20,9 +25,18 @@ from pathlib import Path
 from typing import Any
 
 from gazereg.data.dataset import StoreInfo
+from gazereg.policies import plugins
 from gazereg.policies.base import CONFIG_FILE, Policy, PolicyConfig
 from gazereg.policies.vla.modeling_vla import VLAPolicy
 from gazereg.runtime.config import Choice
+from gazereg.runtime.errors import UsageError
+
+
+class UnknownPolicy(UsageError, KeyError):
+    """A policy type nobody registered or installed (a user mistake: `gazereg` exits 2 naming the known
+    ones); a KeyError too, for callers that look names up."""
+
+    __str__ = BaseException.__str__  # the message as given, not KeyError's quoted repr
 
 
 class PolicyRegistry:
@@ -54,11 +68,16 @@ class PolicyRegistry:
         self._classes.pop(name, None)
 
     def names(self) -> list[str]:
-        return sorted(self._classes)
+        """The registered policy types and those installed plugins provide, sorted."""
+        return sorted({*self._classes, *plugins.plugin_names()})
 
     def policy_class(self, name: str) -> type[Policy]:
+        """The class of policy type `name`: registered, else loaded (and registered) from the installed
+        plugin of that name (`gazereg.policies.plugins`)."""
+        if name not in self._classes and (found := plugins.plugin_policy(name)) is not None:
+            self.register(found)
         if name not in self._classes:
-            raise KeyError(f"unknown policy type {name!r}; registered: {self.names()}")
+            raise UnknownPolicy(f"unknown policy type {name!r}; registered: {self.names()}")
         return self._classes[name]
 
     def config_class(self, name: str) -> type[PolicyConfig]:
@@ -66,7 +85,7 @@ class PolicyRegistry:
 
 
 POLICIES = PolicyRegistry(VLAPolicy)
-"""The process's policy registry (the built-ins; `register_policy` adds more)."""
+"""The process's policy registry (the built-ins; `register_policy` and installed plugins add more)."""
 
 POLICY_CHOICE = Choice(lookup=POLICIES.config_class, name_of=operator.attrgetter("type"))
 """Metadata of a config field holding a `PolicyConfig`: `--FIELD.type NAME` picks the registered class on the

@@ -14,12 +14,13 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from gazereg.report.ids import RunId
 from gazereg.report.markdown import rate_difference
 from gazereg.report.tables import paired_distance_tests, paired_tests, run_of, success_table
 from gazereg.runtime.config import config_diff
+from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_json, atomic_write_text
 
 
@@ -155,8 +156,15 @@ def compare_markdown(result: dict[str, Any], level: int = 2) -> str:
     return "\n".join(lines) + "\n"
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse whose usage errors are `UsageError`s: `gazereg` prints them as one line and exits 2."""
+
+    def error(self, message: str) -> NoReturn:
+        raise UsageError(f"{message} (gazereg compare --help)")
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
+    ap = _Parser(
         prog="gazereg compare",
         description="Compare two experiment runs evaluated on the same setups (paired by training seed, task, "
         "condition and setup seed).",

@@ -13,6 +13,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from gazereg.report.ids import RunId
+from gazereg.report.tables import split_paired_name
+
 # attention-vs-gaze metrics shown, in this column order: report.md shows them all, the results block a subset
 REPORT_ALIGNMENT_KEYS = (
     "gaze_kl",
@@ -96,10 +99,9 @@ def paired_lines(report: dict[str, Any]) -> list[str]:
         "|---|---|---|---|---|---|---|---|",
     ]
     for k, v in report["paired"].items():
-        comparison, condition = k.split(" | ", 1)
-        a, b = comparison.split(" vs ", 1)
+        a, b, condition = split_paired_name(k)
         lines.append(
-            f"| {comparison} | {condition} | {v['pairs']} | {v[f'{a}_only']} | {v[f'{b}_only']} | "
+            f"| {a} vs {b} | {condition} | {v['pairs']} | {v[f'{a}_only']} | {v[f'{b}_only']} | "
             f"{rate_difference(v)} | {v['mcnemar_p']:.3f} | {v['fisher_p']:.3f} |"
         )
     return lines
@@ -111,16 +113,16 @@ def val_loss_lines(report: dict[str, Any]) -> list[str]:
     runs = {k: v for k, v in (report.get("val_loss") or {}).items() if v is not None}
     if not runs:
         return []
-    by_arm: dict[str, dict[str, float]] = {}
+    by_arm: dict[str, dict[int, float]] = {}
     for name, v in runs.items():
-        arm, _, seed = name.partition("@")
-        by_arm.setdefault(arm, {})[seed or "-"] = v
+        run = RunId.parse(name)
+        by_arm.setdefault(run.arm, {})[run.seed] = v
     seeds = sorted({s for d in by_arm.values() for s in d})
     lines = [
         "",
         "## Action loss on held-out demonstrations (end of training; lower is better)",
         "",
-        "| arm | " + " | ".join(seeds) + " | mean |",
+        "| arm | " + " | ".join(f"s{s}" for s in seeds) + " | mean |",
         "|---|" + "---|" * (len(seeds) + 1),
     ]
     for arm, d in by_arm.items():
@@ -180,9 +182,9 @@ def distance_lines(report: dict[str, Any], conds: list[str]) -> list[str]:
             "|---|---|---|---|---|",
         ]
         for k, v in dist["paired"].items():
-            comparison, condition = k.split(" | ", 1)
+            a, b, condition = split_paired_name(k)
             lines.append(
-                f"| {comparison} | {condition} | {v['n']} | {v['mean_diff']:+.4f} "
+                f"| {a} vs {b} | {condition} | {v['n']} | {v['mean_diff']:+.4f} "
                 f"[{v['ci95'][0]:+.4f}, {v['ci95'][1]:+.4f}] | {v['p_value']:.4f} |"
             )
     return lines

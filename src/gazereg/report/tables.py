@@ -15,6 +15,8 @@ from collections import defaultdict
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
+import torch
+
 from gazereg.evaluation.stats import (
     fisher_exact,
     mcnemar_exact,
@@ -63,6 +65,20 @@ def per_seed_table(records: list[dict[str, Any]]) -> dict[str, dict[str, list[in
     return dict(sorted(out.items()))
 
 
+def paired_name(arm: str, reference: str, condition: str) -> str:
+    """A paired comparison's name, its key in report.json's "paired" tables: "arm vs reference | condition"."""
+    return f"{arm} vs {reference} | {condition}"
+
+
+def split_paired_name(name: str) -> tuple[str, str, str]:
+    """(arm, reference, condition) of a `paired_name`."""
+    comparison, bar, condition = name.partition(" | ")
+    arm, vs, reference = comparison.partition(" vs ")
+    if not (bar and vs):
+        raise ValueError(f"{name!r} is not a paired comparison's name ('arm vs reference | condition')")
+    return arm, reference, condition
+
+
 def paired_by_setup(
     records: list[dict[str, Any]], value: Callable[[dict[str, Any]], Any], reference: str
 ) -> Iterator[tuple[str, str, list[Any], list[Any]]]:
@@ -82,7 +98,12 @@ def paired_by_setup(
                 continue
             common = sorted(set(xs) & set(ref))
             if common:
-                yield f"{arm} vs {reference} | {cond}", arm, [xs[k] for k in common], [ref[k] for k in common]
+                yield (
+                    paired_name(arm, reference, cond),
+                    arm,
+                    [xs[k] for k in common],
+                    [ref[k] for k in common],
+                )
 
 
 def paired_tests(records: list[dict[str, Any]], reference: str = "baseline") -> dict[str, dict[str, Any]]:
@@ -190,7 +211,7 @@ def verdict(
             apart = not overlap(c["ci95"], r["ci95"])
             intervals = "the 95% intervals do not overlap" if apart else "the 95% intervals overlap"
             better = "better" if diff > 0 else "worse"
-            test = (paired or {}).get(f"{arm} vs {reference} | {cond}")
+            test = (paired or {}).get(paired_name(arm, reference, cond))
             if test is not None:
                 p = test["mcnemar_p"]
                 if "rate_ci95" in test:
@@ -212,8 +233,7 @@ def verdict(
 
 
 def machine_summary() -> dict[str, Any]:
-    import torch
-
+    """The machine a report ran on: architecture, cores, torch and Python versions, the GPU's name (or None)."""
     return {
         "summary": f"{platform.machine()} CPU, {os.cpu_count()} cores, torch {torch.__version__}, Python {platform.python_version()}",
         "cores": os.cpu_count(),

@@ -5,17 +5,30 @@ Every command has a frozen dataclass config and a dict of named presets (functio
 A field marked with `Choice` metadata holds one of several registered dataclasses: `--a.b.type NAME`
 (LeRobot-style) swaps in the named class (its defaults) before the overrides of its fields apply, and
 `to_dict` records the name as "type". Resolved configs are stored as JSON beside what they produced.
+
+Validation: a config class derived from `Validated` checks its own fields in `validate` whenever it is built
+(`__post_init__`: presets, `dataclasses.replace`, the command line) and raises `UsageError` naming the option
+as it is typed (`--gaze.weight must be a finite number >= 0, got nan`; `require_number`, `require_choice`).
+While `parse` runs tyro the checks wait until the whole config is built, then run with each option's full
+dotted path, so a bad value ends as one error line (not tyro's box).
+
+Resuming: `check_same_config` refuses to continue a folder made with another configuration, listing every
+changed key (`optim.lr: 0.001 -> 0.002`) except the execution-only keys that the caller allows to change.
 """
 
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import json
-from collections.abc import Callable, Sequence
+import math
+import numbers
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
+from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_text
 
 T = TypeVar("T")
@@ -30,7 +43,7 @@ def split_preset(argv: Sequence[str], default: str) -> tuple[str, list[str]]:
         if arg == "--preset":
             name = next(it, None)
             if name is None:
-                raise SystemExit("--preset needs a name")
+                raise UsageError("--preset needs a name")
         elif arg.startswith("--preset="):
             name = arg.split("=", 1)[1]
         else:
@@ -66,7 +79,7 @@ def _take_option(argv: list[str], flag: str) -> tuple[str | None, list[str]]:
         else:
             value = next(it, None)
             if value is None:
-                raise SystemExit(f"{flag} needs a name")
+                raise UsageError(f"{flag} needs a name")
     return value, rest
 
 
@@ -84,7 +97,7 @@ def choose(cfg: T, argv: Sequence[str], prefix: str = "") -> tuple[T, list[str]]
                 try:
                     cls = choice.lookup(name)
                 except KeyError as e:
-                    raise SystemExit(f"--{path}.type: {e.args[0]}") from None
+                    raise UsageError(f"--{path}.type: {e.args[0]}") from None
                 if type(value) is not cls:
                     value = updates[f.name] = cls()
         if dataclasses.is_dataclass(value) and not isinstance(value, type):
@@ -102,10 +115,94 @@ def parse(presets: dict[str, Callable[[], T]], argv: Sequence[str], prog: str, d
         raise ValueError("no presets defined")
     name, rest = split_preset(argv, default=next(iter(presets)))
     if name not in presets:
-        raise SystemExit(f"unknown preset {name!r} for {prog}; choose one of {sorted(presets)}")
+        raise UsageError(f"unknown preset {name!r} for {prog}; choose one of {sorted(presets)}")
     base, rest = choose(presets[name](), rest)
     doc = f"{description}\nPreset: {name} (choose with --preset; one of {', '.join(presets)})."
-    return tyro.cli(type(base), default=base, args=rest, prog=prog, description=doc)
+    token = _DEFER_VALIDATION.set(True)
+    try:
+        cfg = tyro.cli(type(base), default=base, args=rest, prog=prog, description=doc)
+    finally:
+        _DEFER_VALIDATION.reset(token)
+    validate_tree(cfg)
+    return cfg
+
+
+# ----- validation -----------------------------------------------------------------------------------------
+_DEFER_VALIDATION: contextvars.ContextVar[bool] = contextvars.ContextVar(
+    "gazereg_defer_validation", default=False
+)
+
+
+def option(path: str) -> str:
+    """The command-line spelling of a dotted config path: `optim.min_lr_frac` -> `--optim.min-lr-frac`."""
+    return "--" + path.replace("_", "-")
+
+
+class Validated:
+    """Base of a frozen dataclass config that checks its fields when built. Subclasses implement
+    `validate(prefix)`, naming options as `option(prefix + field)`; `OPTION_PREFIX` is the prefix used when the
+    config is built on its own (e.g. "gaze." for the `gaze` field of the training config)."""
+
+    OPTION_PREFIX: ClassVar[str] = ""
+
+    def __post_init__(self) -> None:
+        if not _DEFER_VALIDATION.get():
+            self.validate(self.OPTION_PREFIX)
+
+    def validate(self, prefix: str) -> None:
+        """Raise `UsageError` naming the first option out of range."""
+
+
+def validate_tree(cfg: Any, prefix: str = "") -> None:
+    """Run `validate` on every `Validated` config in a nested config, innermost first, with full paths."""
+    if not dataclasses.is_dataclass(cfg) or isinstance(cfg, type):
+        return
+    for f in dataclasses.fields(cfg):
+        validate_tree(getattr(cfg, f.name), f"{prefix}{f.name}.")
+    if isinstance(cfg, Validated):
+        cfg.validate(prefix)
+
+
+def _bounds_text(low: float | None, high: float | None, open_low: bool, open_high: bool) -> str:
+    if low is not None and high is not None:
+        return f" in {'(' if open_low else '['}{low:g}, {high:g}{')' if open_high else ']'}"
+    if low is not None:
+        return f" {'>' if open_low else '>='} {low:g}"
+    if high is not None:
+        return f" {'<' if open_high else '<='} {high:g}"
+    return ""
+
+
+def require_number(
+    value: Any,
+    path: str,
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    integer: bool = False,
+    open_low: bool = False,
+    open_high: bool = False,
+) -> None:
+    """Raise `UsageError` naming `option(path)` unless `value` is a finite number (an integer with `integer`)
+    within [low, high] (either end open with `open_low` / `open_high`, either omitted for no bound)."""
+    kind = numbers.Integral if integer else numbers.Real
+    ok = isinstance(value, kind) and not isinstance(value, bool) and math.isfinite(value)
+    if ok and low is not None:
+        ok = value > low if open_low else value >= low
+    if ok and high is not None:
+        ok = value < high if open_high else value <= high
+    if not ok:
+        what = "an integer" if integer else "a finite number"
+        raise UsageError(
+            f"{option(path)} must be {what}{_bounds_text(low, high, open_low, open_high)}, got {value!r}"
+        )
+
+
+def require_choice(value: Any, path: str, choices: Iterable[Any]) -> None:
+    """Raise `UsageError` naming `option(path)` unless `value` is one of `choices`."""
+    allowed = list(choices)
+    if value not in allowed:
+        raise UsageError(f"{option(path)} must be one of {', '.join(map(str, allowed))}, got {value!r}")
 
 
 def to_dict(cfg: Any) -> dict[str, Any]:
@@ -145,3 +242,24 @@ def config_diff(a: Any, b: Any, ignore: Sequence[str] = (), prefix: str = "") ->
                 out.update(config_diff(a.get(k), b.get(k), ignore, f"{prefix}{k}."))
         return out
     return {} if a == b else {prefix.rstrip("."): [a, b]}
+
+
+class ConfigMismatch(UsageError):
+    """A folder holds work made with another configuration than the one given (`check_same_config`)."""
+
+
+def check_same_config(
+    saved: Mapping[str, Any], new: Any, execution_keys: Collection[str], where: str | Path, advice: str
+) -> None:
+    """Refuse to continue work saved with another configuration.
+
+    saved: the saved config (`to_dict` as JSON); new: the config now given (a config or its `to_dict`);
+    execution_keys: dotted keys that change how the work runs, not its results (they may differ);
+    where: the folder or file that holds the saved work; advice: what the user can do, ending the message.
+    Raises `ConfigMismatch` listing every other changed key as `key: old -> new`.
+    """
+    new_dict = new if isinstance(new, Mapping) else to_dict(new)
+    diff = config_diff(json.loads(json.dumps(saved)), json.loads(json.dumps(new_dict)), tuple(execution_keys))
+    if diff:
+        changes = ", ".join(f"{k}: {a!r} -> {b!r}" for k, (a, b) in diff.items())
+        raise ConfigMismatch(f"{where} holds a run with another configuration ({changes}); {advice}")

@@ -11,29 +11,43 @@
         rng.safetensors + rng.json                      torch (CPU and CUDA), numpy and python RNG states
 
 The whole step folder is written under a temporary name and renamed, so a checkpoint exists completely or
-not at all; `latest_checkpoint` therefore never returns a half-written one.
+not at all; `latest_checkpoint` therefore never returns a half-written one. A checkpoint damaged afterwards (a
+truncated copy, a full disk) raises `DamagedCheckpoint` naming the file when read (`read_checkpoint` reads every
+file before anything is restored); `read_resumable` then falls back to the previous readable checkpoint with
+a logged warning.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import random
 import re
 import shutil
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import torch
+from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import Tensor
 
 from gazereg.policies import Policy
+from gazereg.policies.base import CONFIG_FILE
 from gazereg.runtime.io import atomic_dir
+
+log = logging.getLogger(__name__)
 
 STEP_RE = re.compile(r"^step_(\d{6,})$")
 STATE_DIR = "training_state"
+T = TypeVar("T")
+
+
+class DamagedCheckpoint(ValueError):
+    """A file of a checkpoint cannot be read (truncated, corrupted or missing); the message names it."""
 
 
 def checkpoint_dir(run_dir: str | Path, step: int) -> Path:
@@ -192,6 +206,111 @@ def save_checkpoint(
     return path
 
 
+@dataclass
+class CheckpointData:
+    """Everything a checkpoint holds, read into memory (nothing restored yet)."""
+
+    path: Path
+    state: dict[str, Any]
+    """state.json: step, epoch, steps, the resolved training config, ..."""
+    policy_type: str | None
+    """the policy type recorded in the pretrained config.json"""
+    model: dict[str, Tensor]
+    """the raw (non-EMA) weights"""
+    ema: dict[str, Tensor] | None
+    """the EMA weights (model.safetensors) when the checkpoint holds them"""
+    optimizer: Any
+    scheduler: dict[str, Any]
+    rng: Any
+
+
+def _read(file: Path, reader: Callable[[Path], T]) -> T:
+    """reader(file), with any failure to read it raised as DamagedCheckpoint naming the file."""
+    try:
+        return reader(file)
+    except (OSError, ValueError, KeyError, TypeError, SafetensorError) as e:
+        raise DamagedCheckpoint(f"checkpoint file {file} cannot be read ({type(e).__name__}: {e})") from e
+
+
+def _read_json(file: Path) -> Any:
+    return json.loads(file.read_text())
+
+
+def _read_tensors(file: Path) -> dict[str, Tensor]:
+    return load_file(str(file))
+
+
+def _read_split(directory: Path, name: str) -> Any:
+    """A state saved by `save_tensors_json`, each of its two files named when it cannot be read."""
+    tensors = _read(directory / f"{name}.safetensors", _read_tensors)
+    structure = _read(directory / f"{name}.json", _read_json)
+    return _read(directory / f"{name}.json", lambda _: join_state(tensors, structure))
+
+
+def read_checkpoint(path: str | Path) -> CheckpointData:
+    """Read every file of a training checkpoint; FileNotFoundError when `path` is not one, DamagedCheckpoint
+    naming the first file that cannot be read."""
+    path = Path(path)
+    ts = path / STATE_DIR
+    if not (ts / "state.json").exists():
+        raise FileNotFoundError(f"{path} is not a training checkpoint (no {STATE_DIR}/state.json)")
+    state = _read(ts / "state.json", _read_json)
+    if not isinstance(state, dict) or "step" not in state:
+        raise DamagedCheckpoint(f"checkpoint file {ts / 'state.json'} has no step")
+    pretrained = _read(path / CONFIG_FILE, _read_json)
+    model = _read(path / "model.safetensors", _read_tensors)
+    ema = None
+    if (ts / "model_raw.safetensors").exists():
+        ema, model = model, _read(ts / "model_raw.safetensors", _read_tensors)
+    return CheckpointData(
+        path=path,
+        state=state,
+        policy_type=pretrained.get("type") if isinstance(pretrained, dict) else None,
+        model=model,
+        ema=ema,
+        optimizer=_read_split(ts, "optimizer"),
+        scheduler=_read(ts / "scheduler.json", _read_json),
+        rng=_read_split(ts, "rng"),
+    )
+
+
+def read_resumable(run_dir: str | Path) -> CheckpointData | None:
+    """The newest checkpoint of a run that reads completely (None when the run has none). A damaged newer one
+    is skipped with a logged warning; when none reads, the newest one's DamagedCheckpoint is raised."""
+    first_error: DamagedCheckpoint | None = None
+    for _, path in reversed(list_checkpoints(run_dir)):
+        try:
+            data = read_checkpoint(path)
+        except DamagedCheckpoint as e:
+            first_error = first_error or e
+            log.warning("%s; falling back to the previous checkpoint", e)
+            continue
+        return data
+    if first_error is not None:
+        raise first_error
+    return None
+
+
+def restore_checkpoint(
+    data: CheckpointData,
+    policy: Policy,
+    optimizer: torch.optim.Optimizer,
+    scheduler: Any,
+    restore_rng: bool = True,
+) -> dict[str, Any]:
+    """Restore raw weights, optimizer, scheduler (and RNG) from a read checkpoint; returns state.json (with the
+    EMA state dict under 'ema_state_dict' when the checkpoint holds one)."""
+    state = dict(data.state)
+    if data.ema is not None:
+        state["ema_state_dict"] = data.ema
+    policy.load_state_dict(data.model)
+    optimizer.load_state_dict(data.optimizer)
+    scheduler.load_state_dict({**scheduler.state_dict(), **data.scheduler})
+    if restore_rng:
+        set_rng_state(data.rng)
+    return state
+
+
 def load_checkpoint(
     path: str | Path,
     policy: Policy,
@@ -199,21 +318,6 @@ def load_checkpoint(
     scheduler: Any,
     restore_rng: bool = True,
 ) -> dict[str, Any]:
-    """Restore raw weights, optimizer, scheduler (and RNG) from a checkpoint; returns state.json (with the EMA
-    state dict under 'ema_state_dict' when the checkpoint holds one)."""
-    path = Path(path)
-    ts = path / STATE_DIR
-    if not (ts / "state.json").exists():
-        raise FileNotFoundError(f"{path} is not a training checkpoint (no {STATE_DIR}/state.json)")
-    state = json.loads((ts / "state.json").read_text())
-    model_sd = load_file(str(path / "model.safetensors"))
-    if (ts / "model_raw.safetensors").exists():
-        state["ema_state_dict"] = model_sd
-        model_sd = load_file(str(ts / "model_raw.safetensors"))
-    policy.load_state_dict(model_sd)
-    optimizer.load_state_dict(load_tensors_json(ts, "optimizer"))
-    sched = json.loads((ts / "scheduler.json").read_text())
-    scheduler.load_state_dict({**scheduler.state_dict(), **sched})
-    if restore_rng:
-        set_rng_state(load_tensors_json(ts, "rng"))
-    return state
+    """`read_checkpoint` then `restore_checkpoint`: restore a checkpoint into the policy, optimizer, scheduler
+    (and RNG); returns state.json (with 'ema_state_dict' when the checkpoint holds EMA weights)."""
+    return restore_checkpoint(read_checkpoint(path), policy, optimizer, scheduler, restore_rng)

@@ -7,22 +7,60 @@
 `gazereg train --preset NAME` starts from PRESETS[NAME]; every field can be overridden on the command line
 (e.g. --gaze.prior visuomotor --optim.lr 3e-4). The presets train the reference VLA; `--policy.type NAME`
 trains another registered policy (with that policy's default config, then --policy.FIELD overrides).
+
+Every config checks its options when it is built (a `Validated` config: numbers finite and in range, choices
+known) and raises UsageError naming the option, e.g. `--gaze.weight must be a finite number >= 0, got nan`.
+
+`--resume` continues the same run: a checkpoint's config must match the one given, except the
+EXECUTION_KEYS, which change how the run executes but not the weights it produces. `steps` is not one of
+them (the LR and gaze-weight schedules span `steps`): to pause a run, use `stop_at`; to train longer, start a
+new run.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal, get_args
 
 from gazereg.losses import Divergence
 from gazereg.policies import POLICY_CHOICE, PolicyConfig
 from gazereg.policies.vla.configuration_vla import VLAConfig
 from gazereg.policies.vla.configuration_vla import paper as paper_policy
+from gazereg.runtime.config import Validated, option, require_choice, require_number
+from gazereg.runtime.errors import UsageError
+
+EXECUTION_KEYS = (
+    "run_dir",
+    "resume",
+    "stop_at",
+    "device",
+    "threads",
+    "progress",
+    "logger",
+    "wandb_project",
+    "save_every",
+    "keep_checkpoints",
+    "data.num_workers",
+    "data.in_memory",
+)
+"""dotted TrainConfig keys a resumed run may change: where and how it runs (folder, device, threads, loader
+workers, frames in RAM or memory-mapped), what it shows (progress bar, external logger) and which checkpoints
+it writes and keeps. Everything else (seed, steps, batch, data, policy, gaze, optimiser, augmentation,
+precision, and what metrics.jsonl records: log_every, eval_every, eval_batch_size) must stay the same. Another
+device or thread count keeps every setting but rounds differently (CPU reductions split over threads), so a
+resume is bit for bit the uninterrupted run only on the same device and thread count."""
+
+WeightKind = Literal["constant", "linear_warmup", "cosine"]
+Device = Literal["auto", "cpu", "cuda"]
+Precision = Literal["no", "bf16", "fp16"]
+LoggerKind = Literal["none", "tensorboard", "wandb"]
 
 
 @dataclass(frozen=True)
-class DataConfig:
+class DataConfig(Validated):
+    OPTION_PREFIX: ClassVar[str] = "data."
+
     store: Path = Path("data/demos")
     """episode store (`gazereg collect` / `gazereg import`)"""
     tasks: tuple[str, ...] = ()
@@ -36,9 +74,17 @@ class DataConfig:
     num_workers: int = 0
     """DataLoader worker processes (0: batches are built in the training process)"""
 
+    def validate(self, prefix: str) -> None:
+        if self.max_episodes is not None:
+            require_number(self.max_episodes, f"{prefix}max_episodes", 1, integer=True)
+        require_number(self.val_fraction, f"{prefix}val_fraction", 0, 1, open_high=True)
+        require_number(self.num_workers, f"{prefix}num_workers", 0, integer=True)
+
 
 @dataclass(frozen=True)
-class GazeConfig:
+class GazeConfig(Validated):
+    OPTION_PREFIX: ClassVar[str] = "gaze."
+
     prior: str | None = None
     """prior name in the store (`gazereg priors`); unset trains the baseline with no gaze anywhere"""
     enabled: bool = True
@@ -46,7 +92,7 @@ class GazeConfig:
     camera: str | None = None
     """the camera the prior is for (default: the one recorded in prior.json)"""
     weight: float = 0.1
-    schedule: Literal["constant", "linear_warmup", "cosine"] = "constant"
+    schedule: WeightKind = "constant"
     warmup_steps: int = 0
     final_frac: float = 0.0
     layers: tuple[int, ...] = (-2, -1)
@@ -57,9 +103,22 @@ class GazeConfig:
     """epsilon floor of the gaze patch distributions"""
     loss_eps: float = 1e-8
 
+    def validate(self, prefix: str) -> None:
+        require_number(self.weight, f"{prefix}weight", 0)
+        require_choice(self.schedule, f"{prefix}schedule", get_args(WeightKind))
+        require_number(self.warmup_steps, f"{prefix}warmup_steps", 0, integer=True)
+        require_number(self.final_frac, f"{prefix}final_frac", 0, 1)
+        for layer in self.layers:
+            require_number(layer, f"{prefix}layers", integer=True)
+        require_choice(self.divergence, f"{prefix}divergence", get_args(Divergence))
+        require_number(self.patch_eps, f"{prefix}patch_eps", 0, open_low=True)
+        require_number(self.loss_eps, f"{prefix}loss_eps", 0, open_low=True)
+
 
 @dataclass(frozen=True)
-class OptimConfig:
+class OptimConfig(Validated):
+    OPTION_PREFIX: ClassVar[str] = "optim."
+
     lr: float = 1e-3
     weight_decay: float = 1e-4
     betas: tuple[float, float] = (0.9, 0.999)
@@ -71,9 +130,21 @@ class OptimConfig:
     ema_decay: float = 0.0
     """EMA of the weights (saved for evaluation) when > 0, e.g. 0.999"""
 
+    def validate(self, prefix: str) -> None:
+        require_number(self.lr, f"{prefix}lr", 0, open_low=True)
+        require_number(self.weight_decay, f"{prefix}weight_decay", 0)
+        if len(self.betas) != 2:
+            raise UsageError(f"{option(prefix + 'betas')} takes two numbers, got {self.betas!r}")
+        for beta in self.betas:
+            require_number(beta, f"{prefix}betas", 0, 1, open_high=True)
+        require_number(self.warmup_steps, f"{prefix}warmup_steps", 0, integer=True)
+        require_number(self.min_lr_frac, f"{prefix}min_lr_frac", 0, 1)
+        require_number(self.grad_clip, f"{prefix}grad_clip", 0)
+        require_number(self.ema_decay, f"{prefix}ema_decay", 0, 1, open_high=True)
+
 
 @dataclass(frozen=True)
-class TrainConfig:
+class TrainConfig(Validated):
     run_dir: Path = Path("runs/train")
     seed: int = 0
     steps: int = 1500
@@ -98,13 +169,26 @@ class TrainConfig:
     """continue from the newest checkpoint in run_dir"""
     stop_at: int | None = None
     """stop (with a checkpoint) after this many steps without changing the schedule; resume later"""
-    device: Literal["auto", "cpu", "cuda"] = "auto"
-    mixed_precision: Literal["no", "bf16", "fp16"] = "no"
+    device: Device = "auto"
+    mixed_precision: Precision = "no"
     threads: int | None = None
     """torch intra-op threads per process (default: torch's choice)"""
     progress: bool = True
-    logger: Literal["none", "tensorboard", "wandb"] = "none"
+    logger: LoggerKind = "none"
     wandb_project: str = "gazereg"
+
+    def validate(self, prefix: str) -> None:
+        require_number(self.seed, f"{prefix}seed", integer=True)
+        for name in ("steps", "batch_size", "log_every", "eval_every", "eval_batch_size", "save_every"):
+            require_number(getattr(self, name), prefix + name, 1, integer=True)
+        require_number(self.shift, f"{prefix}shift", 0, integer=True)
+        require_number(self.keep_checkpoints, f"{prefix}keep_checkpoints", 0, integer=True)
+        for name in ("stop_at", "threads"):
+            if getattr(self, name) is not None:
+                require_number(getattr(self, name), prefix + name, 1, integer=True)
+        require_choice(self.device, f"{prefix}device", get_args(Device))
+        require_choice(self.mixed_precision, f"{prefix}mixed_precision", get_args(Precision))
+        require_choice(self.logger, f"{prefix}logger", get_args(LoggerKind))
 
 
 def smoke() -> TrainConfig:

@@ -31,13 +31,14 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import torch
 
 from gazereg.gaze.glc.checkpoint import WEIGHTS_NAME, load_glc_checkpoint, save_glc
 from gazereg.gaze.glc.model import GLC, frame_softmax, prepare_clip
 from gazereg.gaze.glc.targets import gaze_target_maps
+from gazereg.runtime.config import Validated, require_number
 from gazereg.runtime.io import append_jsonl, atomic_dir
 from gazereg.training.checkpoint import (
     STATE_DIR,
@@ -68,8 +69,11 @@ def glc_kl_loss(logits: torch.Tensor, target: torch.Tensor, temperature: float =
 
 
 @dataclass(frozen=True)
-class GLCTrainConfig:
-    """Optimisation settings (official values by default; `warmup_steps` stands for 5 of 15 epochs)."""
+class GLCTrainConfig(Validated):
+    """Optimisation settings (official values by default; `warmup_steps` stands for 5 of 15 epochs), checked
+    when built (`validate`; the `gazereg glc train` options are `--optim.*`)."""
+
+    OPTION_PREFIX: ClassVar[str] = "optim."
 
     steps: int = 1000
     batch_size: int = 12
@@ -88,6 +92,17 @@ class GLCTrainConfig:
     """checkpoints kept on disk (at least 1)"""
     log_every: int = 10
     seed: int = 0
+
+    def validate(self, prefix: str) -> None:
+        """UsageError naming the first option out of range."""
+        for name in ("steps", "batch_size", "checkpoint_every", "keep_last", "log_every"):
+            require_number(getattr(self, name), prefix + name, 1, integer=True)
+        require_number(self.warmup_steps, prefix + "warmup_steps", 0, integer=True)
+        require_number(self.seed, prefix + "seed", integer=True)
+        for name in ("lr", "grad_clip", "temperature"):
+            require_number(getattr(self, name), prefix + name, 0, open_low=True)
+        for name in ("warmup_start_lr", "min_lr", "weight_decay"):
+            require_number(getattr(self, name), prefix + name, 0)
 
 
 def lr_at(step: int, cfg: GLCTrainConfig) -> float:

@@ -40,17 +40,18 @@ from gazereg.gaze.glc.model import GLC
 from gazereg.gaze.sources import GazeSourceParams
 from gazereg.gaze.sources.glc import CONFIGS, GLCConfigName, GLCParams
 from gazereg.gaze.sources.visuomotor import VisuomotorParams
-from gazereg.runtime.config import to_dict
-from gazereg.runtime.io import atomic_write_json
+from gazereg.runtime.config import Validated, require_choice, require_number, to_dict
+from gazereg.runtime.errors import UsageError
+from gazereg.runtime.io import atomic_write_json, sweep_stale_temps
 from gazereg.training.glc import GLCTrainConfig, train_glc
 
 log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
-class GLCRunSettings:
+class GLCRunSettings(Validated):
     """Everything about a GLC training run but where its gaze comes from (shared by the library's
-    `GLCStoreTrainConfig` and the command line's `GLCTrainCommand`)."""
+    `GLCStoreTrainConfig` and the command line's `GLCTrainCommand`); checked when built (`validate`)."""
 
     store: Path = Path("data/demos")
     """episode store with frames and per-frame gaze"""
@@ -79,6 +80,17 @@ class GLCRunSettings:
     evaluate: bool = True
     """evaluate on the held-out episodes after training (writes <out>/eval.json)"""
     resume: bool = True
+
+    def validate(self, prefix: str) -> None:
+        """UsageError naming the first bad option (the optimisation settings check their own)."""
+        require_choice(self.config, prefix + "config", sorted(CONFIGS))
+        require_number(self.stride, prefix + "stride", 1, integer=True)
+        require_number(self.clip_hop, prefix + "clip_hop", 1, integer=True)
+        if not self.holdout:
+            require_number(self.holdout_every, prefix + "holdout_every", 2, integer=True)
+        for index in self.holdout:
+            require_number(index, prefix + "holdout", 0, integer=True)
+        require_number(self.threads, prefix + "threads", 0, integer=True)
 
 
 @dataclass(frozen=True)
@@ -114,7 +126,7 @@ def _load_init(model: GLC, init: Path) -> None:
     if folder is not None:
         src = load_glc(folder)
         if src.cfg != model.cfg:
-            raise ValueError(f"--init {init}: its architecture differs from --config")
+            raise UsageError(f"--init {init}: its architecture differs from --config")
         model.load_state_dict(src.state_dict(), strict=True)
     else:
         if not Path(init).exists():
@@ -124,8 +136,6 @@ def _load_init(model: GLC, init: Path) -> None:
 
 def _build_model(cfg: GLCStoreTrainConfig) -> GLC:
     """The GLC to train: seeded random initialisation, or `cfg.init`'s weights, on `cfg.device`."""
-    if cfg.config not in CONFIGS:
-        raise ValueError(f"unknown --config {cfg.config!r}; use one of {sorted(CONFIGS)}")
     torch.manual_seed(cfg.optim.seed)
     model = GLC(CONFIGS[cfg.config]())
     if cfg.init:
@@ -185,9 +195,13 @@ def train_glc_on_store(cfg: GLCStoreTrainConfig) -> GLCStoreTrainResult:
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
     store = EpisodeStore(cfg.store)
+    sweep_stale_temps(cfg.out)  # what killed writers of an earlier attempt left
     split = holdout_split(store, cfg.holdout_every, cfg.holdout)
     if not split.train:
-        raise ValueError(f"no training episodes left in {cfg.store} after holding out {list(split.heldout)}")
+        raise UsageError(
+            f"--holdout / --holdout-every: no training episodes left in {cfg.store} after holding out "
+            f"{list(split.heldout)}"
+        )
     model = _build_model(cfg)
     source = gaze_points_source(cfg.gaze, store)
     t0 = time.perf_counter()

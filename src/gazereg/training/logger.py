@@ -1,16 +1,21 @@
 """Metric sinks: metrics.jsonl (always, the run's record) plus an optional external logger.
 
 The external logger is a no-op by default; `tensorboard` and `wandb` are imported only when chosen.
+A killed run can leave a partial last line in metrics.jsonl: readers skip it (with a logged warning) and a
+resumed run drops it; a line that does not parse anywhere else raises ValueError naming the file and line.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import math
 from pathlib import Path
 from typing import Any
 
 from gazereg.runtime.io import append_jsonl, atomic_write_text
+
+log = logging.getLogger(__name__)
 
 
 class NullLogger:
@@ -80,17 +85,37 @@ class MetricsFile:
         )
 
     def truncate_after(self, step: int) -> None:
-        """Drop records beyond `step` (a resumed run rewrites what came after its checkpoint)."""
+        """Keep only the records up to `step` (a resumed run rewrites what came after its checkpoint; a run
+        started from scratch, step 0, starts an empty file) and drop a partial last line."""
         if not self.path.exists():
             return
-        keep = [
-            line
-            for line in self.path.read_text().splitlines()
-            if line.strip() and json.loads(line).get("step", 0) <= step
-        ]
+        keep = [line for line, record in _records(self.path) if record.get("step", 0) <= step]
         atomic_write_text(self.path, "".join(line + "\n" for line in keep))
 
 
 def read_metrics(path: str | Path) -> list[dict[str, Any]]:
+    """The records of a metrics.jsonl ([] when it does not exist). A last line that does not parse (a write
+    cut short by a kill) is skipped with a warning; any other bad line raises ValueError naming path:line."""
     p = Path(path)
-    return [json.loads(line) for line in p.read_text().splitlines() if line.strip()] if p.exists() else []
+    return [record for _, record in _records(p)] if p.exists() else []
+
+
+def _records(p: Path) -> list[tuple[str, dict[str, Any]]]:
+    """(line, record) for every record line of an existing metrics file (see `read_metrics`)."""
+    lines = p.read_text().splitlines()
+    last = max((i for i, line in enumerate(lines) if line.strip()), default=-1)
+    records = []
+    for i, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+            if not isinstance(record, dict):
+                raise ValueError(f"a JSON {type(record).__name__}, not an object")
+        except ValueError as e:
+            if i == last:
+                log.warning("%s:%d: skipping a partial last line (%s)", p, i + 1, e)
+                continue
+            raise ValueError(f"{p}:{i + 1} is not a metrics record ({e})") from e
+        records.append((line, record))
+    return records

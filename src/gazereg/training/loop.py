@@ -84,7 +84,13 @@ def step(run: Run, step: int, batch: dict[str, Tensor]) -> StepOutput:
     terms = {"loss/action": float(loss.detach())}
     if probe is not None:
         kl, ginfo = gaze_loss(
-            batch["gaze"], probe.distribution(), batch["gaze_valid"], cfg.gaze.divergence, cfg.gaze.loss_eps
+            batch["gaze"],
+            probe.distribution(),
+            batch["gaze_valid"],
+            cfg.gaze.divergence,
+            cfg.gaze.loss_eps,
+            gaze_grid=run.built.gaze_grid,
+            attention_grid=run.built.attention_grid,
         )
         if w > 0:  # weight 0 logs the KL but leaves the graph (and so the update) exactly the baseline's
             loss = loss + w * kl
@@ -110,9 +116,15 @@ def step(run: Run, step: int, batch: dict[str, Tensor]) -> StepOutput:
 
 @torch.no_grad()
 def evaluate_batch(
-    policy: Policy, batch: dict[str, Tensor], cfg: TrainConfig, gaze_camera: str | None, prefix: str
+    policy: Policy,
+    batch: dict[str, Tensor],
+    cfg: TrainConfig,
+    gaze_camera: str | None,
+    prefix: str,
+    grids: tuple[tuple[int, int] | None, tuple[int, int] | None] = (None, None),
 ) -> dict[str, float]:
-    """Action loss and, with a prior, the attention-gaze alignment on one fixed batch (no RNG consumed)."""
+    """Action loss and, with a prior, the attention-gaze alignment on one fixed batch (no RNG consumed).
+    grids: (gaze grid, attention grid), (rows, cols) each, checked against each other by `gaze_loss`."""
     was_training = policy.training
     policy.eval()
     gen = step_generator(cfg.seed, -1, 0, policy.device)
@@ -130,7 +142,15 @@ def evaluate_batch(
             dev = policy.device
             attn = probe.distribution()
             gaze, valid = batch["gaze"].to(dev), batch["gaze_valid"].to(dev)
-            kl, _ = gaze_loss(gaze, attn, valid, cfg.gaze.divergence, cfg.gaze.loss_eps)
+            kl, _ = gaze_loss(
+                gaze,
+                attn,
+                valid,
+                cfg.gaze.divergence,
+                cfg.gaze.loss_eps,
+                gaze_grid=grids[0],
+                attention_grid=grids[1],
+            )
             out[f"{prefix}/gaze_kl"] = float(kl)
             out[f"{prefix}/patch_mass"] = float(probe.patch_mass().mean())
             aligned = alignment_metrics(gaze.cpu(), attn.cpu(), valid.cpu())
@@ -145,8 +165,10 @@ def evaluate(run: Run, step: int, callbacks: Sequence[Callback]) -> dict[str, An
     evaluation policy in eval mode with its episode state reset). Every process waits for it."""
     out: dict[str, Any] = {}
     if run.main:
+        built = run.built
+        grids = (built.gaze_grid, built.attention_grid)
         for name, batch in run.eval_batches.items():
-            out.update(evaluate_batch(run.eval_policy(), batch, run.cfg, run.built.gaze_camera, name))
+            out.update(evaluate_batch(run.eval_policy(), batch, run.cfg, built.gaze_camera, name, grids))
         for cb in callbacks:
             policy = run.eval_policy()
             policy.eval()

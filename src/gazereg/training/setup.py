@@ -3,13 +3,17 @@
 `build` makes the data sets and the policy from a config through the Policy interface only
 (`gazereg.policies.base`); `setup` adds the accelerator, the optimiser and LR schedule, the EMA, the restored
 checkpoint (with `resume`) and the data loader, and returns them as one `Run`.
+
+At the start `setup` removes the temporaries that killed writers left in the run folder. With `resume` it
+reads the newest checkpoint that reads completely (a damaged newer one is skipped with a warning) and refuses
+a config that differs from the checkpoint's in anything but the execution keys (training.config); without a
+checkpoint the run starts clean (metrics.jsonl of a run killed before its first checkpoint is emptied).
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,11 +34,12 @@ from gazereg.data.dataset import (
 from gazereg.data.store import EpisodeStore
 from gazereg.losses import WeightSchedule
 from gazereg.policies import Policy, make_policy
-from gazereg.policies.base import CONFIG_FILE
-from gazereg.runtime.config import save_config, to_dict
+from gazereg.runtime.config import check_same_config, option, save_config, to_dict
+from gazereg.runtime.errors import UsageError
+from gazereg.runtime.io import sweep_stale_temps
 from gazereg.runtime.seeding import seed_everything
-from gazereg.training.checkpoint import latest_checkpoint, load_checkpoint
-from gazereg.training.config import TrainConfig
+from gazereg.training.checkpoint import CheckpointData, latest_checkpoint, read_resumable, restore_checkpoint
+from gazereg.training.config import EXECUTION_KEYS, TrainConfig
 from gazereg.training.ema import EMA
 from gazereg.training.logger import MetricsFile, NullLogger, make_logger
 from gazereg.training.schedule import lr_lambda, param_groups
@@ -52,6 +57,11 @@ class Built:
     train_set: EpisodeDataset
     val_set: EpisodeDataset | None
     gaze_camera: str | None
+    gaze_grid: tuple[int, int] | None = None
+    """(rows, cols) of the patch grid the data set mapped the gaze targets onto (None without a prior)"""
+    attention_grid: tuple[int, int] | None = None
+    """(rows, cols) of the policy's patch grid for the gaze camera, the probed attention's (None without a
+    prior)"""
 
 
 def build(cfg: TrainConfig) -> Built:
@@ -88,7 +98,11 @@ def build(cfg: TrainConfig) -> Built:
     train_set = dataset(train_eps)
     val_set = dataset(val_eps) if val_eps else None
     policy.set_normalization(**train_set.stats())
-    return Built(policy, dataclasses.replace(cfg, policy=pcfg), train_set, val_set, gaze_camera)
+    built = Built(policy, dataclasses.replace(cfg, policy=pcfg), train_set, val_set, gaze_camera)
+    if gaze_camera is not None:
+        built.gaze_grid = train_set.gaze_geometry.grid_hw
+        built.attention_grid = policy.geometry(gaze_camera).grid_hw
+    return built
 
 
 def fixed_batch(ds: EpisodeDataset, n: int) -> dict[str, Tensor]:
@@ -156,27 +170,49 @@ def make_accelerator(cfg: TrainConfig) -> Any:
     use_cpu = cfg.device == "cpu" or (cfg.device == "auto" and not torch.cuda.is_available())
     acc = Accelerator(cpu=use_cpu, mixed_precision=cfg.mixed_precision)
     if cfg.batch_size % acc.num_processes:
-        raise ValueError(
-            f"batch_size {cfg.batch_size} must be divisible by the number of processes ({acc.num_processes})"
+        raise UsageError(
+            f"{option('batch_size')} {cfg.batch_size} must be divisible by the number of processes "
+            f"({acc.num_processes})"
         )
     return acc
 
 
-def checkpoint_to_resume(cfg: TrainConfig) -> Path | None:
-    """The newest checkpoint with --resume (None: start from scratch); refuses to overwrite one without."""
+def checkpoint_to_resume(cfg: TrainConfig, sweep: bool = True) -> CheckpointData | None:
+    """The newest readable checkpoint with --resume (None: start from scratch); refuses to overwrite one
+    without, and to resume another policy type. `sweep` (the main process) first removes the temporaries that
+    killed writers left in the run folder."""
     run_dir = Path(cfg.run_dir)
-    ckpt = latest_checkpoint(run_dir) if cfg.resume else None
+    for tmp in sweep_stale_temps(run_dir) if sweep else ():
+        log.info("removed %s, left by a killed run", tmp)
+    ckpt = read_resumable(run_dir) if cfg.resume else None
     if cfg.resume and ckpt is None:
         log.warning("--resume: no checkpoint in %s, starting from scratch", run_dir)
     if not cfg.resume and latest_checkpoint(run_dir) is not None:
         raise FileExistsError(
             f"{run_dir} already holds checkpoints; pass --resume to continue it or choose another --run-dir"
         )
-    if ckpt is not None:
-        saved = json.loads((ckpt / CONFIG_FILE).read_text()).get("type")
-        if saved != cfg.policy.type:
-            raise ValueError(f"{ckpt} holds a {saved!r} policy; resume it with --policy.type {saved}")
+    if ckpt is not None and ckpt.policy_type != cfg.policy.type:
+        raise UsageError(
+            f"{ckpt.path} holds a {ckpt.policy_type!r} policy; resume it with --policy.type {ckpt.policy_type}"
+        )
     return ckpt
+
+
+def check_resume_config(ckpt: CheckpointData, cfg: TrainConfig) -> None:
+    """Refuse to resume with a resolved config that differs from the checkpoint's in anything but the
+    execution keys: the rest of the run would follow other settings than its first part (ConfigMismatch)."""
+    saved = ckpt.state.get("config")
+    if not isinstance(saved, dict):
+        raise UsageError(f"{ckpt.path} records no training config; it cannot be resumed")
+    allowed = ", ".join(option(k) for k in EXECUTION_KEYS)
+    check_same_config(
+        saved,
+        cfg,
+        EXECUTION_KEYS,
+        ckpt.path,
+        f"resuming would continue it with other settings. Resume with the options it was started with (only "
+        f"{allowed} may change), or choose another --run-dir",
+    )
 
 
 def make_optimiser(
@@ -194,33 +230,26 @@ def make_optimiser(
 
 
 def restore(
-    ckpt: Path,
+    ckpt: CheckpointData,
     policy: Policy,
     opt: torch.optim.Optimizer,
     sched: torch.optim.lr_scheduler.LambdaLR,
     ema: EMA | None,
-    cfg: TrainConfig,
 ) -> int:
     """Load weights, optimiser, LR schedule, RNG states (and the EMA) from `ckpt`; returns its step."""
-    state = load_checkpoint(ckpt, policy, opt, sched)
+    state = restore_checkpoint(ckpt, policy, opt, sched)
     start = int(state["step"])
     if ema is not None:
         if "ema_state_dict" not in state:
-            raise ValueError(f"{ckpt} has no EMA weights but optim.ema_decay > 0")
+            raise ValueError(f"{ckpt.path} has no EMA weights but optim.ema_decay > 0")
         ema.load_state_dict(state["ema_state_dict"], int(state.get("ema_updates", start)))
-    if state.get("steps") != cfg.steps:
-        log.warning(
-            "resuming a run planned for %s steps with steps=%d: the LR schedule changes",
-            state.get("steps"),
-            cfg.steps,
-        )
     return start
 
 
 def setup(cfg: TrainConfig) -> Run:
     """Accelerator, data and policy, optimiser and schedules, the resumed state, the loader: a `Run`."""
     acc = make_accelerator(cfg)
-    ckpt = checkpoint_to_resume(cfg)
+    ckpt = checkpoint_to_resume(cfg, sweep=acc.is_main_process)
     built = build(cfg)
     cfg, policy, main = built.config, built.policy, acc.is_main_process
     run_dir = Path(cfg.run_dir)
@@ -229,11 +258,12 @@ def setup(cfg: TrainConfig) -> Run:
     metrics = MetricsFile(run_dir / "metrics.jsonl")
     start = 0
     if ckpt is not None:
-        start = restore(ckpt, policy, opt, sched, ema, cfg)
+        check_resume_config(ckpt, cfg)
+        start = restore(ckpt, policy, opt, sched, ema)
         if main:
-            metrics.truncate_after(start)
-            log.info("resumed from %s (step %d)", ckpt, start)
+            log.info("resumed from %s (step %d)", ckpt.path, start)
     if main:
+        metrics.truncate_after(start)  # from scratch (start 0): a clean file, not a killed run's records
         run_dir.mkdir(parents=True, exist_ok=True)
         save_config(cfg, run_dir / "config.json")
     acc.wait_for_everyone()
@@ -265,7 +295,7 @@ def setup(cfg: TrainConfig) -> Run:
         loader=loader,
         start=start,
         stop=stop,
-        resumed_from=ckpt,
+        resumed_from=ckpt.path if ckpt is not None else None,
         metrics=metrics,
         logger=logger,
         gaze_spec=policy.gaze_probe_spec(built.gaze_camera, g.layers) if gaze_on else None,

@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from gazereg.runtime.errors import UsageError
 from gazereg.runtime.subcommands import Subcommands
 
 
@@ -48,13 +49,16 @@ def strip(cfg: StripConfig) -> Path:
     store = EpisodeStore(cfg.store)
     if cfg.episode not in store:
         have = store.indices()
-        raise SystemExit(
-            f"no episode {cfg.episode} in {cfg.store}; it has {len(have)}: {have[:20]}{' ...' if len(have) > 20 else ''}"
+        raise UsageError(
+            f"--episode: no episode {cfg.episode} in {cfg.store}; it has {len(have)}: "
+            f"{have[:20]}{' ...' if len(have) > 20 else ''}"
         )
     ep = store.read(cfg.episode)
     camera = cfg.camera or next(iter(ep.frames))
     if camera not in ep.frames:
-        raise SystemExit(f"episode {cfg.episode} has no camera {camera!r}; cameras: {sorted(ep.frames)}")
+        raise UsageError(
+            f"--camera: episode {cfg.episode} has no camera {camera!r}; cameras: {sorted(ep.frames)}"
+        )
     points = target = None
     names: tuple[str, ...] = ()
     if cfg.prior:

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gazereg.runtime.io import atomic_path
+
 
 def colorize(heat: np.ndarray, cmap: str = "inferno") -> np.ndarray:
     """(H, W) non-negative map -> (H, W, 3) uint8 colours, scaled so the map's maximum is the top colour."""
@@ -39,8 +41,6 @@ def overlay(frame: np.ndarray, heat: np.ndarray, alpha: float = 0.55, cmap: str 
 def write_gif(path: str | Path, frames: list[np.ndarray], fps: int = 20) -> Path:
     """Write frames (H, W, 3) uint8 as an animated GIF, atomically."""
     from PIL import Image
-
-    from gazereg.runtime.io import atomic_path
 
     if not frames:
         raise ValueError("no frames to write")

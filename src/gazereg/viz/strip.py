@@ -18,6 +18,8 @@ from typing import Any
 import numpy as np
 
 from gazereg.data.store import Episode
+from gazereg.runtime.io import atomic_path
+from gazereg.viz.overlay import overlay
 
 
 def pick_frames(length: int, n: int) -> list[int]:
@@ -26,6 +28,16 @@ def pick_frames(length: int, n: int) -> list[int]:
         raise ValueError("the episode has no frames")
     n = max(1, min(n, length))
     return sorted({int(round(x)) for x in np.linspace(0, length - 1, n)})
+
+
+def _pyplot() -> Any:
+    """matplotlib.pyplot on the non-interactive Agg backend (unless one was chosen already), imported lazily."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt
 
 
 def draw_strip(
@@ -46,59 +58,95 @@ def draw_strip(
 
     heatmaps: (T, h, w) per-frame gaze maps (any grid; stretched over the image), valid: (T,) bool.
     points: (T, 2) normalised (u, v) gaze points (NaN: none). target: (T,) int index into target_names.
+    frames: the frame indices to show (default: `n_frames` spread evenly). panel_inches: one frame's size.
     """
-    import matplotlib
+    plt = _pyplot()
+    idx = _check_inputs(
+        episode, camera, frames, n_frames, heatmaps=heatmaps, valid=valid, points=points, target=target
+    )
+    T = len(episode.frames[camera])
+    names = target_names if target is not None else ()
+    n = len(idx)
+    fig = plt.figure(figsize=(panel_inches * n, panel_inches * 1.45 + 0.35), dpi=100)
+    gs = fig.add_gridspec(2, n, height_ratios=[panel_inches, 0.42 * panel_inches], hspace=0.25, wspace=0.04)
+    for j, t in enumerate(idx):
+        _draw_frame(fig.add_subplot(gs[0, j]), episode, camera, t, heatmaps, valid, points, target, names)
+    _draw_timeline(fig.add_subplot(gs[1, :]), episode, T, idx, valid, target, names)
+    fig.suptitle(
+        title or f"episode {episode.index}: {episode.task} ({camera}, {T} frames)", fontsize=9, y=0.995
+    )
+    if out is not None:
+        with atomic_path(Path(out)) as tmp:
+            fig.savefig(tmp, format="png", bbox_inches="tight")
+    return fig
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
 
-    from gazereg.viz.overlay import overlay
-
+def _check_inputs(
+    episode: Episode, camera: str, frames: Sequence[int] | None, n_frames: int, **per_frame: np.ndarray | None
+) -> list[int]:
+    """The frame indices to draw, after checking the camera exists and every per-frame array has T entries."""
     if camera not in episode.frames:
         raise KeyError(f"episode {episode.index} has no camera {camera!r}; cameras: {sorted(episode.frames)}")
-    video = episode.frames[camera]
-    T, H, W = video.shape[:3]
-    for name, arr in (("heatmaps", heatmaps), ("valid", valid), ("points", points), ("target", target)):
+    T = len(episode.frames[camera])
+    for name, arr in per_frame.items():
         if arr is not None and len(arr) != T:
             raise ValueError(f"{name} has {len(arr)} frames, the episode has {T}")
     idx = list(frames) if frames is not None else pick_frames(T, n_frames)
     bad = [i for i in idx if not 0 <= i < T]
     if bad:
         raise ValueError(f"frames {bad} are outside the episode (0..{T - 1})")
+    return idx
 
-    n = len(idx)
-    fig = plt.figure(figsize=(panel_inches * n, panel_inches * 1.45 + 0.35), dpi=100)
-    gs = fig.add_gridspec(2, n, height_ratios=[panel_inches, 0.42 * panel_inches], hspace=0.25, wspace=0.04)
-    obj = episode.extras.get(f"obj_uv.{camera}")
-    goal = episode.extras.get(f"goal_uv.{camera}")
-    for j, t in enumerate(idx):
-        ax = fig.add_subplot(gs[0, j])
-        img = np.asarray(video[t])
-        ok = True if valid is None else bool(valid[t])
-        if heatmaps is not None and ok and float(np.asarray(heatmaps[t]).max()) > 0:
-            img = overlay(img, np.asarray(heatmaps[t], dtype=np.float64))
-        ax.imshow(img, extent=(0, W, H, 0), interpolation="nearest")
-        if obj is not None and np.isfinite(obj[t]).all():
-            ax.plot(obj[t, 0] * W, obj[t, 1] * H, "o", ms=9, mfc="none", mec="cyan", mew=0.9)
-        if goal is not None and np.isfinite(goal[t]).all():
-            ax.plot(goal[t, 0] * W, goal[t, 1] * H, "s", ms=9, mfc="none", mec="magenta", mew=0.9)
-        if points is not None and np.isfinite(points[t]).all() and ok:
-            ax.plot(points[t, 0] * W, points[t, 1] * H, "+", ms=11, color="white", mew=2.0)
-            ax.plot(points[t, 0] * W, points[t, 1] * H, "+", ms=9, color="black", mew=0.8)
-        label = f"t={t}"
-        if target is not None and len(target_names):
-            label += f" {target_names[int(target[t])]}"
-        if not ok:
-            label += " (no gaze)"
-        ax.set_title(label, fontsize=8, pad=2)
-        ax.set_xlim(0, W)
-        ax.set_ylim(H, 0)
-        ax.axis("off")
 
-    tl = fig.add_subplot(gs[1, :])
+def _draw_frame(
+    ax: Any,
+    episode: Episode,
+    camera: str,
+    t: int,
+    heatmaps: np.ndarray | None,
+    valid: np.ndarray | None,
+    points: np.ndarray | None,
+    target: np.ndarray | None,
+    target_names: Sequence[str],
+) -> None:
+    """One panel: frame `t` with its heatmap blended in, the projected object and goal, and the gaze point."""
+    img = np.asarray(episode.frames[camera][t])
+    H, W = img.shape[:2]
+    ok = True if valid is None else bool(valid[t])
+    if heatmaps is not None and ok and float(np.asarray(heatmaps[t]).max()) > 0:
+        img = overlay(img, np.asarray(heatmaps[t], dtype=np.float64))
+    ax.imshow(img, extent=(0, W, H, 0), interpolation="nearest")
+    for key, marker, colour in (("obj_uv", "o", "cyan"), ("goal_uv", "s", "magenta")):
+        uv = episode.extras.get(f"{key}.{camera}")
+        if uv is not None and np.isfinite(uv[t]).all():
+            ax.plot(uv[t, 0] * W, uv[t, 1] * H, marker, ms=9, mfc="none", mec=colour, mew=0.9)
+    if points is not None and np.isfinite(points[t]).all() and ok:
+        ax.plot(points[t, 0] * W, points[t, 1] * H, "+", ms=11, color="white", mew=2.0)
+        ax.plot(points[t, 0] * W, points[t, 1] * H, "+", ms=9, color="black", mew=0.8)
+    label = f"t={t}"
+    if target is not None and len(target_names):
+        label += f" {target_names[int(target[t])]}"
+    if not ok:
+        label += " (no gaze)"
+    ax.set_title(label, fontsize=8, pad=2)
+    ax.set_xlim(0, W)
+    ax.set_ylim(H, 0)
+    ax.axis("off")
+
+
+def _draw_timeline(
+    tl: Any,
+    episode: Episode,
+    T: int,
+    idx: Sequence[int],
+    valid: np.ndarray | None,
+    target: np.ndarray | None,
+    target_names: Sequence[str],
+) -> None:
+    """The episode's timeline: gaze target (and frames without gaze), contact and grasp, the shown frames."""
     rows = []
     if target is not None and len(target_names):
-        colours = plt.get_cmap("tab10")
+        colours = _pyplot().get_cmap("tab10")
         for k, name in enumerate(target_names):
             tl.broken_barh(
                 _runs(np.asarray(target) == k),
@@ -129,15 +177,6 @@ def draw_strip(
         tl.legend(
             fontsize=6, loc="upper right", ncol=len(target_names) + 1, frameon=False, bbox_to_anchor=(1, 1.45)
         )
-    fig.suptitle(
-        title or f"episode {episode.index}: {episode.task} ({camera}, {T} frames)", fontsize=9, y=0.995
-    )
-    if out is not None:
-        from gazereg.runtime.io import atomic_path
-
-        with atomic_path(Path(out)) as tmp:
-            fig.savefig(tmp, format="png", bbox_inches="tight")
-    return fig
 
 
 def _runs(mask: np.ndarray) -> list[tuple[float, float]]:

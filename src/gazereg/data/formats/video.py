@@ -9,7 +9,9 @@ ahead seeks to the nearest key frame first.
 
 `decode_image` decodes one PNG or JPEG image held as bytes (LeRobot "image" features).
 
-Every failure is raised as `DecodeError` naming the file and what went wrong.
+Every failure is raised as `DecodeError` naming the file and what went wrong. An MP4 / MOV file cut short
+(a copy or download that stopped) is recognised when it is opened, from its top-level boxes
+(`iso_truncation`), and a seek or decode failure says that the file may be truncated or corrupt.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import numpy as np
 
 # A forward gap (seconds) up to which decoding continues instead of seeking.
 _SEEK_GAP_S = 2.0
+_HINT = "the file may be truncated or corrupt"
 
 
 class DecodeError(ValueError):
@@ -37,6 +40,31 @@ def _av() -> Any:
     return av
 
 
+def iso_truncation(path: Path) -> str | None:
+    """Why an ISO base media file (MP4, MOV: it starts with an `ftyp` box) is cut short, or None when its
+    top-level boxes fit the file (or it is not such a file, or what follows them is not a box header). Each
+    box starts with its 32-bit size and type (size 1: a 64-bit size follows; size 0: the box runs to the end
+    of the file); a file is reported only when a box's size runs past its end."""
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        if f.read(8)[4:8] != b"ftyp":
+            return None
+        offset = 0
+        while offset + 8 <= size:
+            f.seek(offset)
+            head = f.read(16)
+            box = int.from_bytes(head[:4], "big")
+            if box == 1 and len(head) == 16:
+                box = int.from_bytes(head[8:16], "big")
+            if box < 8:  # 0: runs to the end; 1 without its 64-bit size, or less than a header: not a box
+                return None
+            if offset + box > size:
+                kind = head[4:8].decode("latin-1")
+                return f"its {kind!r} box at byte {offset} needs {box} bytes but the file ends after {size - offset}"
+            offset += box
+    return None
+
+
 class VideoFile:
     """Decode frames of one video file by presentation time. Use as a context manager or call close().
 
@@ -49,10 +77,13 @@ class VideoFile:
         self.path = Path(path)
         if not self.path.exists():
             raise DecodeError(f"video file {self.path} does not exist")
+        cut = iso_truncation(self.path)
+        if cut is not None:
+            raise DecodeError(f"video file {self.path} is truncated: {cut} (copy it again)")
         try:
             self._container = av.open(str(self.path))
         except Exception as e:  # av.error.* (InvalidDataError, ...) and OSError
-            raise DecodeError(f"video file {self.path} could not be opened: {e}") from e
+            raise DecodeError(f"video file {self.path} could not be opened ({_HINT}): {e}") from e
         if not self._container.streams.video:
             self._container.close()
             raise DecodeError(f"video file {self.path} has no video stream")
@@ -86,7 +117,7 @@ class VideoFile:
         try:
             self._container.seek(offset, stream=self._stream, backward=True, any_frame=False)
         except Exception as e:
-            raise DecodeError(f"video file {self.path}: seeking to {t:.4f} s failed: {e}") from e
+            raise DecodeError(f"video file {self.path}: seeking to {t:.4f} s failed ({_HINT}): {e}") from e
         self._frames = self._container.decode(self._stream)
         self._pending = None
         self._last_time = None
@@ -129,7 +160,9 @@ class VideoFile:
             raise
         except Exception as e:  # av.error.InvalidDataError and friends
             self._frames = None
-            raise DecodeError(f"video file {self.path}: decoding failed near {t0:.4f}-{t1:.4f} s: {e}") from e
+            raise DecodeError(
+                f"video file {self.path}: decoding failed near {t0:.4f}-{t1:.4f} s ({_HINT}): {e}"
+            ) from e
         return out
 
     def read(self, times: np.ndarray, shape: tuple[int, int] | None = None) -> np.ndarray:

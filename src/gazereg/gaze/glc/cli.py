@@ -31,14 +31,17 @@ from gazereg.gaze.glc.evaluate import (
     resolve_glc_folder,
 )
 from gazereg.gaze.sources import parse_source_params
-from gazereg.gaze.sources.glc import GLCConfigName, GLCMode, GLCParams
-from gazereg.runtime.config import parse
+from gazereg.gaze.sources.glc import CONFIGS, GLCConfigName, GLCMode, GLCParams
+from gazereg.runtime.config import Validated, option, parse, require_choice, require_number
+from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_json
 from gazereg.runtime.subcommands import Entry, Subcommands, run_entry
 
 
 @dataclass(frozen=True)
-class GLCEvalCommand:
+class GLCEvalCommand(Validated):
+    """`gazereg glc eval`'s options, checked when built (`validate`)."""
+
     store: Path = Path("data/demos")
     checkpoint: Path = Path("runs/glc")
     """a folder from `gazereg glc train` (run folder or its final/), or an official checkpoint file"""
@@ -67,6 +70,20 @@ class GLCEvalCommand:
     out: Path | None = None
     """JSON report; default <checkpoint folder>/eval.json"""
 
+    def validate(self, prefix: str) -> None:
+        """UsageError naming the first option out of range."""
+        if self.config is not None:
+            require_choice(self.config, prefix + "config", sorted(CONFIGS))
+        require_number(self.holdout_every, prefix + "holdout_every", 2, integer=True)
+        if self.stride is not None:
+            require_number(self.stride, prefix + "stride", 1, integer=True)
+        for name in ("hop", "batch_size"):
+            require_number(getattr(self, name), prefix + name, 1, integer=True)
+        require_number(self.threads, prefix + "threads", 0, integer=True)
+        require_number(self.fixation_threshold, prefix + "fixation_threshold", 0)
+        for index in self.episodes:
+            require_number(index, prefix + "episodes", 0, integer=True)
+
 
 def _episodes(
     cfg: GLCEvalCommand, store: EpisodeStore, trained: dict[str, Any]
@@ -75,6 +92,9 @@ def _episodes(
     held-out ones, else the `holdout_every` rule."""
     if cfg.episodes:
         episodes = sorted(set(cfg.episodes))
+        missing = [i for i in episodes if i not in store]
+        if missing:
+            raise UsageError(f"{option('episodes')}: episodes {missing} are not in {cfg.store}")
         train = trained.get("split", {}).get("train") or [
             i for i in store.indices() if i not in set(episodes)
         ]

@@ -25,6 +25,7 @@ from gazereg.gaze.glc.metrics import center_prior_maps, evaluate_gaze, fit_cente
 from gazereg.gaze.sources import GazeSource, GazeSourceParams, make_gaze_source
 from gazereg.gaze.sources.glc import GLCGaze, GLCParams
 from gazereg.gaze.sources.recorded import RecordedParams
+from gazereg.runtime.errors import UsageError
 
 DEFAULT_CENTRE = ((0.5, 0.5), (0.15, 0.15))
 """`(centre (u, v), sigma (su, sv))` of the centre prior when there are no training episodes"""
@@ -52,11 +53,11 @@ def holdout_split(store: EpisodeStore, holdout_every: int = 5, holdout: Sequence
     if holdout:
         missing = sorted(set(holdout) - set(indices))
         if missing:
-            raise KeyError(f"held-out episodes {missing} are not in {store.root}")
+            raise UsageError(f"--holdout: held-out episodes {missing} are not in {store.root}")
         held = sorted(set(holdout))
     else:
         if holdout_every < 2:
-            raise ValueError(f"holdout_every must be >= 2, got {holdout_every}")
+            raise UsageError(f"--holdout-every must be >= 2, got {holdout_every}")
         by_task: dict[str, list[int]] = {}
         for i in indices:
             by_task.setdefault(store.meta(i)["task"], []).append(i)

@@ -23,6 +23,7 @@ import numpy as np
 
 from gazereg.data.store import Episode
 from gazereg.gaze.sources.params import GazeSourceParams, params_from_strings
+from gazereg.runtime.errors import UsageError
 
 
 class GazeSource(Protocol):
@@ -79,7 +80,7 @@ def _entry(name: str) -> tuple[type[GazeSourceParams], Factory]:
     if name not in _REGISTRY and name in _LAZY:
         importlib.import_module(_LAZY[name])
     if name not in _REGISTRY:
-        raise KeyError(f"unknown gaze source {name!r}; available: {available_gaze_sources()}")
+        raise UsageError(f"unknown gaze source {name!r}; available: {', '.join(available_gaze_sources())}")
     return _REGISTRY[name]
 
 
@@ -89,11 +90,13 @@ def params_type(name: str) -> type[GazeSourceParams]:
 
 
 def gaze_source_params(name: str, **values: Any) -> GazeSourceParams:
-    """The parameters of source `name` with `values` (the rest at their defaults)."""
+    """The parameters of source `name` with `values` (the rest at their defaults); an unknown name or
+    parameter is a `UsageError` that lists what exists."""
+    cls = params_type(name)
     try:
-        return params_type(name)(**values)
+        return cls(**values)
     except TypeError as e:
-        raise TypeError(f"bad parameters for gaze source {name!r}: {e}") from e
+        raise UsageError(f"bad parameters for gaze source {name!r}: {e}") from e
 
 
 def parse_source_params(name: str, items: Sequence[str]) -> GazeSourceParams:
@@ -103,7 +106,7 @@ def parse_source_params(name: str, items: Sequence[str]) -> GazeSourceParams:
 
 def make_gaze_source(source: str | GazeSourceParams, **values: Any) -> GazeSource:
     """Build a gaze source from its parameters, or from its name and parameter values; unknown names and
-    parameters are errors that list what exists."""
+    parameters are `UsageError`s that list what exists."""
     if isinstance(source, GazeSourceParams):
         if values:
             raise TypeError(f"pass the parameters of gaze source {source.name!r} once, not also {values}")

@@ -37,6 +37,7 @@ from gazereg.gaze.glc.data import average_anchors, clip_indices, normalize, prep
 from gazereg.gaze.glc.model import GLC, GLCConfig, frame_softmax
 from gazereg.gaze.sources import register_gaze_source
 from gazereg.gaze.sources.params import GazeSourceParams
+from gazereg.runtime.errors import UsageError
 
 CONFIGS = {"full": GLCConfig.full, "small": GLCConfig.small}
 MODES = ("centre", "average")
@@ -70,12 +71,12 @@ def load_glc_model(
     `seed`: only for tests and benchmarks).
     """
     if checkpoint is None or str(checkpoint) == "":
-        raise ValueError(
+        raise UsageError(
             "the glc gaze source needs a checkpoint: checkpoint=<folder written by `gazereg glc train`> or "
             "checkpoint=<official GLC .pyth file> config=full (checkpoint=random only for tests/benchmarks)"
         )
     if config is not None and config not in CONFIGS:
-        raise ValueError(f"unknown GLC config {config!r}; use one of {sorted(CONFIGS)}")
+        raise UsageError(f"unknown GLC config {config!r}; use one of {sorted(CONFIGS)}")
     if str(checkpoint) == "random":
         torch.manual_seed(seed)
         model = GLC(CONFIGS[config or "full"]())
@@ -94,7 +95,7 @@ def load_glc_model(
             )
         model = load_glc(path)
         if config is not None and model.cfg != CONFIGS[config]():
-            raise ValueError(f"checkpoint {path} holds a {config_name(model.cfg)!r} GLC, not {config!r}")
+            raise UsageError(f"checkpoint {path} holds a {config_name(model.cfg)!r} GLC, not {config!r}")
         weights = path / WEIGHTS_NAME
     else:
         model = load_glc_checkpoint(GLC(CONFIGS[config or "full"]()), path)
@@ -130,11 +131,11 @@ class GLCParams(GazeSourceParams):
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
-            raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
+            raise UsageError(f"mode must be one of {MODES}, got {self.mode!r}")
         if self.config is not None and self.config not in CONFIGS:
-            raise ValueError(f"unknown GLC config {self.config!r}; use one of {sorted(CONFIGS)}")
+            raise UsageError(f"unknown GLC config {self.config!r}; use one of {sorted(CONFIGS)}")
         if self.stride < 1 or self.hop < 1 or self.batch_size < 1:
-            raise ValueError(
+            raise UsageError(
                 f"stride, hop and batch_size must be >= 1, got {self.stride}, {self.hop}, {self.batch_size}"
             )
 
@@ -214,7 +215,7 @@ class GLCGaze:
 
     def __call__(self, episode: Episode, camera: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         if camera not in episode.frames:
-            raise KeyError(
+            raise UsageError(
                 f"episode {episode.index} has no camera {camera!r}; it has {sorted(episode.frames)}"
             )
         frames = episode.frames[camera]

@@ -3,7 +3,8 @@
 Every source declares its parameters as a frozen dataclass deriving from `GazeSourceParams`, whose class
 attribute `name` names the source; the value is passed typed everywhere (configs, the prior pipeline,
 the experiment). Only a command line writes parameters as text, `key=value`, and `params_from_strings`
-turns that into the dataclass once, naming an unknown key or a value of the wrong type.
+turns that into the dataclass once, naming an unknown key or a value of the wrong type (`UsageError`).
+A parameters class checks its values in `__post_init__` and raises `UsageError` for one out of range.
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar, Literal, TypeVar
+
+from gazereg.runtime.errors import UsageError
 
 
 @dataclass(frozen=True)
@@ -40,16 +43,19 @@ def params_from_strings(cls: type[P], items: Sequence[str]) -> P:
     for item in items:
         key, sep, text = item.partition("=")
         if not sep:
-            raise ValueError(f"gaze source {cls.name!r}: parameter {item!r} must be key=value")
+            raise UsageError(f"gaze source {cls.name!r}: parameter {item!r} must be key=value")
         if key not in names:
-            raise ValueError(
+            raise UsageError(
                 f"gaze source {cls.name!r} has no parameter {key!r}; its parameters: {', '.join(names) or 'none'}"
             )
         try:
             values[key] = _read(text, hints[key])
         except ValueError as e:
-            raise ValueError(f"gaze source {cls.name!r}: bad value {key}={text!r}: {e}") from e
-    return cls(**values)
+            raise UsageError(f"gaze source {cls.name!r}: bad value {key}={text!r}: {e}") from e
+    try:
+        return cls(**values)
+    except ValueError as e:  # a value out of range (the parameters' own check)
+        raise UsageError(f"gaze source {cls.name!r}: {e}") from e
 
 
 def _read(text: str, kind: Any) -> Any:

@@ -18,6 +18,7 @@ import numpy as np
 from gazereg.data.store import Episode, EpisodeStore
 from gazereg.gaze.sources import register_gaze_source
 from gazereg.gaze.sources.params import GazeSourceParams
+from gazereg.runtime.errors import UsageError
 
 PerturbationMode = Literal["blobs", "shuffle", "other_episode"]
 
@@ -38,7 +39,7 @@ class PerturbedParams(GazeSourceParams):
 
     def __post_init__(self) -> None:
         if self.mode not in ("blobs", "shuffle", "other_episode"):
-            raise ValueError(f"unknown perturbation {self.mode!r}; use blobs, shuffle or other_episode")
+            raise UsageError(f"unknown perturbation {self.mode!r}; use blobs, shuffle or other_episode")
 
 
 @register_gaze_source(PerturbedParams)
@@ -52,7 +53,10 @@ class PerturbedGaze:
         self.store: EpisodeStore | None = None
 
     def bind(self, store: EpisodeStore) -> None:
-        """Give the source the store it reads base priors from (the prior pipeline calls this)."""
+        """Give the source the store it reads base priors from (the prior pipeline calls this); a base prior
+        the store does not hold is refused here, before anything is made (`MissingPriorError`)."""
+        if self.mode != "blobs":
+            store.prior_info(self.base)
         self.store = store
 
     def describe(self) -> dict[str, Any]:
@@ -68,7 +72,7 @@ class PerturbedGaze:
             raise RuntimeError("perturbed gaze needs a store: call bind(store) before use")
         heat, valid = self.store.read_prior(self.base, index)
         if heat.shape[1:] != tuple(size):
-            raise ValueError(
+            raise UsageError(
                 f"base prior {self.base!r} is {heat.shape[1:]}, requested {size}: use the same size"
             )
         return heat, valid
@@ -88,7 +92,7 @@ class PerturbedGaze:
             heat, valid = self._base(episode.index, size)
             k = self.block
             if size[0] % k or size[1] % k:
-                raise ValueError(f"map size {size} is not divisible into {k}x{k} blocks")
+                raise UsageError(f"map size {size} is not divisible into {k}x{k} blocks")
             gh, gw = size[0] // k, size[1] // k
             blocks = heat.reshape(T, gh, k, gw, k).transpose(0, 1, 3, 2, 4).reshape(T, gh * gw, k, k)
             blocks = blocks[:, rng.permutation(gh * gw)]
@@ -98,7 +102,7 @@ class PerturbedGaze:
             raise RuntimeError("perturbed gaze needs a store: call bind(store) before use")
         indices = self.store.indices()
         if len(indices) < 2:
-            raise ValueError("other_episode needs at least two episodes in the store")
+            raise UsageError("other_episode needs at least two episodes in the store")
         perm = np.random.default_rng(self.seed).permutation(len(indices))
         pos = indices.index(episode.index)
         other = (

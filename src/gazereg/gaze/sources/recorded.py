@@ -15,6 +15,7 @@ from gazereg.data.store import Episode
 from gazereg.gaze.heatmaps import heatmaps_from_points
 from gazereg.gaze.sources import register_gaze_source
 from gazereg.gaze.sources.params import GazeSourceParams
+from gazereg.runtime.errors import UsageError
 
 
 @dataclass(frozen=True)
@@ -28,7 +29,7 @@ class RecordedParams(GazeSourceParams):
 
     def __post_init__(self) -> None:
         if self.sigma <= 0:
-            raise ValueError(f"sigma must be > 0, got {self.sigma}")
+            raise UsageError(f"sigma must be > 0, got {self.sigma}")
 
 
 @register_gaze_source(RecordedParams)
@@ -46,7 +47,10 @@ class RecordedGaze:
         key = f"{self.key}.{camera}"
         if key not in episode.extras:
             have = sorted(k for k in episode.extras if k.startswith(self.key))
-            raise KeyError(f"episode {episode.index} has no recorded gaze {key!r} (it has {have or 'none'})")
+            raise UsageError(
+                f"episode {episode.index} has no recorded gaze {key!r} (it has {have or 'none'}): the recorded "
+                "source reads eye tracking stored with the episodes (e.g. imported with a gaze column)"
+            )
         valid = episode.extras.get(f"gaze_valid.{camera}")
         maps, ok = heatmaps_from_points(
             np.asarray(episode.extras[key]),

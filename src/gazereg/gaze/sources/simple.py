@@ -12,6 +12,7 @@ import torch.nn.functional as F
 from gazereg.data.store import Episode
 from gazereg.gaze.sources import register_gaze_source
 from gazereg.gaze.sources.params import GazeSourceParams
+from gazereg.runtime.errors import UsageError
 
 
 @dataclass(frozen=True)
@@ -53,9 +54,9 @@ class SaliencyParams(GazeSourceParams):
 
     def __post_init__(self) -> None:
         if self.work_size < 8:
-            raise ValueError(f"work_size must be >= 8 px, got {self.work_size}")
+            raise UsageError(f"work_size must be >= 8 px, got {self.work_size}")
         if not 0 <= self.centre < self.surround:
-            raise ValueError(f"need 0 <= centre < surround, got {self.centre}, {self.surround}")
+            raise UsageError(f"need 0 <= centre < surround, got {self.centre}, {self.surround}")
 
 
 @register_gaze_source(SaliencyParams)

@@ -40,6 +40,7 @@ from gazereg.data.store import Episode
 from gazereg.gaze.heatmaps import heatmaps_from_points
 from gazereg.gaze.sources import register_gaze_source
 from gazereg.gaze.sources.params import GazeSourceParams
+from gazereg.runtime.errors import UsageError
 
 # Tasks where the hand has no object to act on: the eyes go straight to the goal.
 GOAL_ONLY_TASKS = frozenset({"reach-v3", "reach-wall-v3"})
@@ -110,15 +111,15 @@ class VisuomotorParams(GazeSourceParams):
             "arrive_radius",
         ):
             if not getattr(self, k) >= 0:
-                raise ValueError(f"{k} must be >= 0, got {getattr(self, k)}")
+                raise UsageError(f"{k} must be >= 0, got {getattr(self, k)}")
         if not 0 <= self.missing_rate <= 1 or not 0 <= self.jitter_rho < 1:
-            raise ValueError(
+            raise UsageError(
                 f"need 0 <= missing_rate <= 1 and 0 <= jitter_rho < 1, got {self.missing_rate}, {self.jitter_rho}"
             )
         if not self.sigma > 0:
-            raise ValueError(f"sigma must be > 0 (a fraction of the heatmap width), got {self.sigma}")
+            raise UsageError(f"sigma must be > 0 (a fraction of the heatmap width), got {self.sigma}")
         if self.fps is not None and not self.fps > 0:
-            raise ValueError(f"fps must be > 0, got {self.fps}")
+            raise UsageError(f"fps must be > 0, got {self.fps}")
 
 
 @register_gaze_source(VisuomotorParams)
@@ -170,7 +171,7 @@ class VisuomotorGaze:
 
     def _extra(self, episode: Episode, key: str) -> np.ndarray:
         if key not in episode.extras:
-            raise ValueError(
+            raise UsageError(
                 f"episode {episode.index} ({episode.task}) has no extra {key!r}, which the visuomotor gaze source "
                 f"needs; it reads the simulator facts that `gazereg collect` stores (has: {sorted(episode.extras)})"
             )

@@ -18,7 +18,9 @@ What lands in the store, one episode per demo:
     gripper_states (8-d), else robomimic's robot0_eef_pos + robot0_eef_quat + robot0_gripper_qpos, else
     the demo's `states`, else (T, 0);
   - action = actions; every other per-frame obs key as extras["obs.<key>"], states as extras["sim_state"],
-    rewards / dones as extras["reward"] / extras["done"];
+    rewards / dones as extras["reward"] / extras["done"]; NaN/inf in any of them is refused (naming the
+    dataset, the demo and the first bad row) unless `nonfinite_ok` names the dataset, and in the state and
+    actions always;
   - instruction: `instruction`, else problem_info's language_instruction, else a language_instruction
     attribute, else the file name (`pick_up_the_bowl_demo.hdf5` -> "pick up the bowl"; LIBERO-90's
     `KITCHEN_SCENE3_` prefix dropped); task: `task`, else the file name without `_demo`.
@@ -49,7 +51,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from gazereg.data.errors import DataImportError
+from gazereg.data.errors import DataImportError, ImportUsageError
 from gazereg.data.formats.hdf5.demos import Hdf5Demos, default_state_keys
 from gazereg.data.imports import SourceEpisode, rotated_cameras, write_episodes
 from gazereg.data.store import Episode, EpisodeStore
@@ -78,6 +80,9 @@ class Hdf5ImportConfig:
     """camera the gaze refers to (default: the first camera)"""
     index_offset: int = 0
     """store index of demo_0 of the first file"""
+    nonfinite_ok: tuple[str, ...] = ()
+    """datasets (obs keys, or states / rewards / dones) whose NaN/inf values are imported as they are
+    (by default NaN/inf is refused, naming the dataset and the first bad row)"""
     progress: bool = True
 
 
@@ -95,7 +100,7 @@ def plan_file(cfg: Hdf5ImportConfig, demos: Hdf5Demos, offset: int) -> list[Sour
         cfg.rotate180, cams, auto=cams if demos.is_libero else [], where=f" from {demos.path}"
     )
     if cfg.gaze_camera is not None and cfg.gaze_key is None:
-        raise DataImportError("--gaze-camera needs --gaze-key (the obs key holding the gaze points)")
+        raise ImportUsageError("--gaze-camera needs --gaze-key (the obs key holding the gaze points)")
     task = cfg.task or re.sub(r"_demo$", "", demos.path.stem)
     settings = {
         "cameras": cams,
@@ -129,13 +134,13 @@ def plan_file(cfg: Hdf5ImportConfig, demos: Hdf5Demos, offset: int) -> list[Sour
 def import_hdf5(cfg: Hdf5ImportConfig) -> dict[str, Any]:
     """Import (or resume importing) HDF5 demonstrations into cfg.out; returns counts and throughput."""
     if not cfg.file:
-        raise DataImportError("no HDF5 file given (--file PATH [PATH ...])")
+        raise ImportUsageError("no HDF5 file given (--file PATH [PATH ...])")
     opened: list[Hdf5Demos] = []
     try:
         items: list[SourceEpisode] = []
         offset = cfg.index_offset
         for path in cfg.file:
-            demos = Hdf5Demos(path)
+            demos = Hdf5Demos(path, nonfinite_ok=cfg.nonfinite_ok)
             opened.append(demos)
             items += plan_file(cfg, demos, offset)
             offset += max(demos.demos) + 1

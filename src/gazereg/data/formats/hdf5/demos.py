@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from gazereg.data.errors import DataImportError
-from gazereg.data.imports import recorded_gaze
+from gazereg.data.errors import DataImportError, ImportUsageError
+from gazereg.data.imports import check_finite, recorded_gaze
 from gazereg.data.store import Episode
 
 _DEMO_RE = re.compile(r"^demo_(\d+)$")
@@ -62,13 +62,17 @@ def instruction_from_filename(path: str | Path) -> str:
 
 
 class Hdf5Demos:
-    """One open HDF5 file of demonstrations. Use as a context manager or call close()."""
+    """One open HDF5 file of demonstrations. Use as a context manager or call close().
 
-    def __init__(self, path: str | Path):
+    nonfinite_ok: datasets (obs keys, or states / rewards / dones) whose NaN/inf values are imported as they
+    are; NaN/inf anywhere else is refused with the dataset, the demo and the first bad row."""
+
+    def __init__(self, path: str | Path, nonfinite_ok: tuple[str, ...] = ()):
         h5py = _h5py()
         self.path = Path(path)
+        self.nonfinite_ok = tuple(nonfinite_ok)
         if not self.path.exists():
-            raise DataImportError(f"HDF5 file {self.path} does not exist")
+            raise ImportUsageError(f"HDF5 file {self.path} does not exist")
         try:
             self.f = h5py.File(self.path, "r")
         except OSError as e:
@@ -146,7 +150,7 @@ class Hdf5Demos:
         """demo_<n>, checked: it has actions, at least one, and as many as its num_samples attribute says."""
         key = self.demos[n]
         g = self.data[key]
-        demo = Demo(g, g.get("obs", {}), self.length(n), f"{self.path}, {key}")
+        demo = Demo(g, g.get("obs", {}), self.length(n), f"{self.path}, {key}", self.nonfinite_ok)
         if demo.T == 0:
             raise DataImportError(f"{demo.where}: the demo is empty (0 actions)")
         num = g.attrs.get("num_samples")
@@ -214,6 +218,8 @@ class Demo:
     """its number of actions"""
     where: str
     """file and demo, for error messages"""
+    nonfinite_ok: tuple[str, ...] = ()
+    """datasets whose NaN/inf values are kept (others are refused)"""
 
     def get(self, k: str, allow_top: bool = True) -> np.ndarray:
         """obs/<k> (else <k> at the demo's top level when `allow_top`), which must have T rows."""
@@ -257,24 +263,28 @@ class Demo:
         self, cameras: list[str], state_keys: tuple[str, ...], gaze_key: str | None
     ) -> dict[str, np.ndarray]:
         """Every per-frame numeric obs dataset that is not a camera, state or gaze as `obs.<key>`, and the
-        demo's states / rewards / dones (unless in the state) as sim_state / reward / done."""
+        demo's states / rewards / dones (unless in the state) as sim_state / reward / done; NaN/inf values are
+        refused (DataImportError naming the dataset and the row) unless the dataset is in `nonfinite_ok`."""
         extras: dict[str, np.ndarray] = {}
         for k, d in self.obs.items():
             if k in cameras or k in state_keys or k == gaze_key or d.ndim == 0 or d.shape[0] != self.T:
                 continue
             if d.dtype.kind in "biuf" and d.ndim <= 3:
-                extras[f"obs.{k}"] = d[()]
+                extras[f"obs.{k}"] = self._finite(d[()], f"obs/{k}", k)
         for src, dst in (("states", "sim_state"), ("rewards", "reward"), ("dones", "done")):
             if src in self.g and src not in state_keys and self.g[src].shape[:1] == (self.T,):
-                extras[dst] = self.g[src][()]
+                extras[dst] = self._finite(self.g[src][()], src, src)
         return extras
+
+    def _finite(self, arr: np.ndarray, path: str, name: str) -> np.ndarray:
+        return check_finite(arr, f"{self.where}: dataset {path!r}", name, self.nonfinite_ok)
 
     def gaze(
         self, gaze_key: str, cam: str | None, cameras: list[str], rotate: list[str]
     ) -> dict[str, np.ndarray]:
         """The recorded gaze of camera `cam` as extras gaze_uv.<cam> and gaze_valid.<cam>."""
         if cam not in cameras:
-            raise DataImportError(
+            raise ImportUsageError(
                 f"{self.where}: gaze camera {cam!r} is not among the imported cameras {cameras}"
             )
         uv, valid = recorded_gaze(

@@ -21,8 +21,9 @@ import resumes where it stopped. What lands in the store:
     (`gaze.point`, (u, v) normalised, u right, v down; NaN = no gaze), which is the `recorded` gaze source's
     input. The camera the gaze refers to is `gaze_camera` (default: the first video camera).
   - extras["lerobot.frame_index" | "lerobot.index" | "lerobot.timestamp"], and every other numeric per-frame
-    feature under its own key; meta["source"] records the data set, its episode_index and the settings,
-    meta["fps"] the frame rate.
+    feature under its own key (NaN/inf in it is refused unless `nonfinite_ok` names it; in state and action
+    always); meta["source"] records the data set, its episode_index and the settings, meta["fps"] the frame
+    rate.
 
 Orientation: frames are stored as the data set holds them (LeRobot data sets are upright; LeRobot's LIBERO
 conversions were already rotated), and gaze stays in that frame. `rotate180` (none | all | comma-separated
@@ -43,7 +44,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from gazereg.data.errors import DataImportError
+from gazereg.data.errors import ImportUsageError
 from gazereg.data.formats.lerobot_v3.dataset import LeRobotV3Dataset
 from gazereg.data.imports import SourceEpisode, rotated_cameras, write_episodes
 from gazereg.data.store import Episode, EpisodeStore
@@ -71,6 +72,9 @@ class LeRobotImportConfig:
     recorded in meta["orientation_applied"] and undone on export"""
     tolerance_s: float = 1e-4
     """max difference between a frame's video time and from_timestamp + timestamp"""
+    nonfinite_ok: tuple[str, ...] = ()
+    """features whose NaN/inf values are imported as they are (by default NaN/inf outside the gaze column is
+    refused, naming the column and the first bad row)"""
     progress: bool = True
 
 
@@ -79,7 +83,7 @@ def _selected(wanted: tuple[Any, ...], have: dict[Any, Any], what: str, has: str
     chosen = list(wanted) or list(have)
     unknown = [x for x in chosen if x not in have]
     if unknown:
-        raise DataImportError(f"{root}: no {what} {unknown[:10]}{has}")
+        raise ImportUsageError(f"{root}: no {what} {unknown[:10]}{has}")
     return chosen
 
 
@@ -115,7 +119,7 @@ def plan_lerobot(cfg: LeRobotImportConfig, dataset: LeRobotV3Dataset) -> list[So
 
 def import_lerobot(cfg: LeRobotImportConfig) -> dict[str, Any]:
     """Import (or resume importing) a LeRobot v3.0 data set into cfg.out; returns counts and throughput."""
-    dataset = LeRobotV3Dataset(cfg.root, tolerance_s=cfg.tolerance_s)
+    dataset = LeRobotV3Dataset(cfg.root, tolerance_s=cfg.tolerance_s, nonfinite_ok=cfg.nonfinite_ok)
     items = plan_lerobot(cfg, dataset)
     store = EpisodeStore(cfg.out, create=True)
     try:

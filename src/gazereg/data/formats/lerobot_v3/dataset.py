@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from gazereg.data.errors import DataImportError
+from gazereg.data.errors import DataImportError, ImportUsageError
 from gazereg.data.formats.lerobot_v3.frames import VideoFrames, read_images
 from gazereg.data.formats.lerobot_v3.metadata import (
     STANDARD_COLUMNS,
@@ -28,7 +28,7 @@ from gazereg.data.formats.lerobot_v3.metadata import (
     rgb_cameras,
     to_numpy,
 )
-from gazereg.data.imports import recorded_gaze
+from gazereg.data.imports import check_finite, recorded_gaze
 from gazereg.data.store import Episode
 
 
@@ -52,11 +52,14 @@ class _Rows:
 
 class LeRobotV3Dataset:
     """Reads a local LeRobot v3.0 data set episode by episode (streaming: one data file and one video file per
-    camera open at a time)."""
+    camera open at a time). `nonfinite_ok`: features whose NaN/inf values are imported as they are (NaN/inf in
+    any other feature is refused with the column, the episode and the first bad row; the gaze column's NaN
+    means no gaze)."""
 
-    def __init__(self, root: str | Path, tolerance_s: float = 1e-4):
+    def __init__(self, root: str | Path, tolerance_s: float = 1e-4, nonfinite_ok: tuple[str, ...] = ()):
         self.root = Path(root)
         self.tolerance_s = tolerance_s
+        self.nonfinite_ok = tuple(nonfinite_ok)
         self.info = read_info(self.root)
         self.fps = float(self.info["fps"])
         self.features: dict[str, dict[str, Any]] = self.info["features"]
@@ -90,13 +93,13 @@ class LeRobotV3Dataset:
         """The imported camera the gaze column `gaze_key` refers to; None where the data set has no such column."""
         if not (gaze_key and gaze_key in self.features):
             if gaze_camera is not None:
-                raise DataImportError(
+                raise ImportUsageError(
                     f"{self.root}: --gaze-camera {gaze_camera} given but the data set has no gaze column {gaze_key!r}"
                 )
             return None
         cam = gaze_camera or self.default_gaze_camera(cams)
         if cam not in cams:
-            raise DataImportError(
+            raise ImportUsageError(
                 f"{self.root}: gaze camera {cam!r} is not among the imported cameras {cams}"
             )
         return cam
@@ -151,7 +154,7 @@ class LeRobotV3Dataset:
         cams = list(self.cameras) if cameras is None else list(cameras)
         for c in cams:
             if c not in self.cameras:
-                raise DataImportError(f"{self.root}: no camera {c!r} (it has {sorted(self.cameras)})")
+                raise ImportUsageError(f"{self.root}: no camera {c!r} (it has {sorted(self.cameras)})")
         return cams
 
     def _rows(self, ep: EpisodeMeta, cams: list[str]) -> _Rows:
@@ -202,7 +205,7 @@ class LeRobotV3Dataset:
             except DataImportError:
                 continue
             if arr.dtype.kind in "biuf" and arr.shape[0] == len(rows):
-                extras[key] = arr
+                extras[key] = check_finite(arr, f"{rows.where}: column {key!r}", key, self.nonfinite_ok)
         return extras
 
     def _episode_tasks(self, ep: EpisodeMeta, rows: _Rows) -> list[str]:

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from gazereg.data.errors import DataExportError
+from gazereg.data.errors import DataExportError, ExportUsageError
 from gazereg.data.formats.lerobot_v3.metadata import require_pyarrow
 from gazereg.data.store import EpisodeStore
 from gazereg.runtime.io import atomic_path, atomic_write_json
@@ -41,7 +41,7 @@ def _export_plan(
         if store.has_prior(prior_name, i) and (episode_map is None or i in episode_map)
     ]
     if not todo:
-        raise DataExportError(
+        raise ExportUsageError(
             f"store {store.root} has no {prior_name!r} priors to export"
             + (" for the given episode map" if episode_map else "")
         )

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from gazereg.data.errors import DataImportError
+from gazereg.data.errors import DataImportError, ImportUsageError
 
 log = logging.getLogger(__name__)
 
@@ -144,7 +144,7 @@ def read_info(root: Path) -> dict[str, Any]:
     """meta/info.json of a LeRobot v3.x data set, checked for the version and the keys the reader needs."""
     info_path = root / "meta" / "info.json"
     if not info_path.exists():
-        raise DataImportError(f"{root} is not a LeRobot data set: {info_path} does not exist")
+        raise ImportUsageError(f"{root} is not a LeRobot data set: {info_path} does not exist")
     try:
         info = json.loads(info_path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
