@@ -5,6 +5,7 @@
     python scripts/update_results.py runs/paper6k --against runs/paper --marker paper-budget
         (run B = runs/paper6k compared with run A = runs/paper on the setups both evaluated)
     python scripts/update_results.py --headline                                  # only the README's headline
+    python scripts/update_results.py runs/quick --check      # exit 1 if the run's numbers differ from the block
 
 A run's block is `gazereg.report.results_block` of its report.json, with the run's attention figure copied to
 docs/figures/<marker>-attention.png; a comparison's block is `gazereg.report.compare.compare_markdown`. The
@@ -64,13 +65,37 @@ def headline_of(block: str) -> str:
     return "\n".join(lines[:stop]) + "\n\n"
 
 
-def run_block(root: Path, run_dir: Path, marker: str) -> str:
+def run_block(root: Path, run_dir: Path, marker: str, copy_figure: bool = True) -> str:
     """The results block of the experiment in `run_dir`, its attention figure copied beside docs/results.md."""
     report = json.loads((run_dir / "report.json").read_text())
     figure = FIGURES / f"{marker}-attention.png"
-    (root / FIGURES).mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(run_dir / report["figures"]["attention"], root / figure)
+    if copy_figure:
+        (root / FIGURES).mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(run_dir / report["figures"]["attention"], root / figure)
     return results_block(report, figure.relative_to(RESULTS_PAGE.parent).as_posix())
+
+
+def block_differences(written: str, produced: str) -> list[str]:
+    """The lines where a block on the page and a freshly rendered one differ, leaving out the run line (its
+    first line: date, machine and wall time change from run to run; the numbers below it must not)."""
+    a, b = written.splitlines()[1:], produced.splitlines()[1:]
+    out = [f"page: {x!r} | run: {y!r}" for x, y in zip(a, b) if x != y]
+    if len(a) != len(b):
+        out.append(f"the page's block has {len(a) + 1} lines, the run's {len(b) + 1}")
+    return out
+
+
+def check(root: Path, run_dir: Path, marker: str) -> int:
+    """0 when the run reproduces the numbers of docs/results.md's block, else 1 with the first difference."""
+    diffs = block_differences(read_block(root / RESULTS_PAGE, marker), run_block(root, run_dir, marker, False))
+    if diffs:
+        print(
+            f"{run_dir} does not reproduce {RESULTS_PAGE} block {marker!r} ({len(diffs)} lines differ; first: "
+            f"{diffs[0]}); regenerate the block at the commit that changed the numbers"
+        )
+        return 1
+    print(f"{run_dir} reproduces {RESULTS_PAGE} block {marker!r}")
+    return 0
 
 
 def update_headline(root: Path) -> None:
@@ -89,6 +114,9 @@ def main(argv: list[str] | None = None) -> int:
         "--headline", action="store_true", help="only copy the README's headline from docs/results.md"
     )
     ap.add_argument("--root", type=Path, default=ROOT, help="the repository to update (default: this one)")
+    ap.add_argument(
+        "--check", action="store_true", help="change nothing; exit 1 if the run's block differs from the page's"
+    )
     args = ap.parse_args(argv)
     if args.headline:
         update_headline(args.root)
@@ -96,6 +124,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.run_dir is None:
         ap.error("run_dir is needed unless --headline is given")
+    if args.check:
+        return check(args.root, args.run_dir, args.marker)
     if args.against:
         block = compare_markdown(compare_runs(args.against, args.run_dir), level=4)
     else:

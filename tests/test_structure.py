@@ -1,5 +1,6 @@
 """The package's shape: no import loops (lazy imports count), no import running back up the layers
-(scripts/structure_facts.py LAYERS), every module in a layer."""
+(scripts/structure_facts.py LAYERS), every module in a layer, the package's own modules imported at module level
+(lazy imports are for heavy third-party packages), files under 400 lines and functions under 60."""
 
 from __future__ import annotations
 
@@ -22,6 +23,13 @@ def test_no_import_loops_and_no_back_arrows():
     assert facts["package_loops"] == []
     assert facts["back_arrows"] == []
     assert facts["unlayered"] == []
+
+
+def test_own_imports_at_module_level_and_short_files_and_functions():
+    facts = load_facts().analyse(ROOT / "src" / "gazereg")
+    assert facts["function_level_imports"] == 0
+    assert facts["long_files"] == []
+    assert facts["long_functions"] == []
 
 
 def test_the_analysis_sees_loops_and_back_arrows(tmp_path):

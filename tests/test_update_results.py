@@ -91,3 +91,18 @@ def test_the_repositorys_readme_headline_is_the_head_of_its_paper_block(script, 
     shutil.copy(ROOT / "README.md", tmp_path / "README.md")
     script.main(["--headline", "--root", str(tmp_path)])
     assert (tmp_path / "README.md").read_text() == (ROOT / "README.md").read_text()
+
+
+def test_check_passes_on_the_same_numbers_and_fails_on_others(script, repo, run, capsys):
+    assert script.main([str(run), "--root", str(repo)]) == 0
+    page = repo / "docs" / "results.md"
+    assert script.main([str(run), "--root", str(repo), "--check"]) == 0
+    text = page.read_text()
+    start = text.index("<!-- quick-results:start -->\n") + len("<!-- quick-results:start -->\n")
+    first_line_end = text.index("\n", start)
+    page.write_text(text[:start] + "Latest run: another date and wall time" + text[first_line_end:])
+    assert script.main([str(run), "--root", str(repo), "--check"]) == 0  # the run line may differ
+    page.write_text(text.replace("| baseline | 0/2", "| baseline | 1/2", 1))
+    assert page.read_text() != text
+    assert script.main([str(run), "--root", str(repo), "--check"]) == 1
+    assert "does not reproduce" in capsys.readouterr().out

@@ -12,6 +12,8 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
+
 
 def wilson(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
     """Wilson score interval for a binomial proportion (95% by default); (0, 1) when n == 0."""
@@ -91,7 +93,6 @@ def paired_mean_difference(
 
     Returns the means, the mean difference a - b with a normal-approximation 95% interval, and a two-sided
     sign-flip permutation p-value (seeded, so reproducible; (hits + 1) / (permutations + 1))."""
-    import numpy as np
 
     x, y = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
     if x.shape != y.shape or x.ndim != 1:

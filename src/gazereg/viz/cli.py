@@ -13,8 +13,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
+from gazereg.data.store import EpisodeStore
+from gazereg.gaze.sources import make_gaze_source, parse_source_params
+from gazereg.runtime.config import parse
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.subcommands import Subcommands
+from gazereg.viz.strip import draw_strip
 
 
 @dataclass(frozen=True)
@@ -40,11 +46,6 @@ class StripConfig:
 
 
 def strip(cfg: StripConfig) -> Path:
-    import numpy as np
-
-    from gazereg.data.store import EpisodeStore
-    from gazereg.gaze.sources import make_gaze_source, parse_source_params
-    from gazereg.viz.strip import draw_strip
 
     store = EpisodeStore(cfg.store)
     if cfg.episode not in store:
@@ -98,7 +99,6 @@ def strip(cfg: StripConfig) -> Path:
 
 
 def strip_main(argv: list[str]) -> int:
-    from gazereg.runtime.config import parse
 
     cfg = parse(
         {"default": StripConfig}, argv, prog="gazereg viz strip", description=__doc__.split("\n\n")[0]
