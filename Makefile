@@ -4,13 +4,17 @@ PY := $(VENV)/bin/python
 EXTRAS ?= sim,viz,data,hf,dev
 PYTEST_ARGS ?= -n 2
 
-.PHONY: setup demo test lint bench clean lerobot-lane
+.PHONY: setup demo demo-check test lint bench clean lerobot-lane
 
 setup:
 	@EXTRAS=$(EXTRAS) VENV=$(VENV) bash scripts/setup.sh
 
 demo: setup
 	$(VENV)/bin/gazereg experiment --preset quick
+
+# The main job, then a check that its numbers are the ones docs/results.md shows (CI runs this).
+demo-check: demo
+	$(PY) scripts/update_results.py runs/quick --check
 
 RUFF_PATHS := src tests benchmarks examples scripts lerobot_plugin tests_lerobot
 
