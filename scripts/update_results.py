@@ -87,7 +87,9 @@ def block_differences(written: str, produced: str) -> list[str]:
 
 def check(root: Path, run_dir: Path, marker: str) -> int:
     """0 when the run reproduces the numbers of docs/results.md's block, else 1 with the first difference."""
-    diffs = block_differences(read_block(root / RESULTS_PAGE, marker), run_block(root, run_dir, marker, False))
+    diffs = block_differences(
+        read_block(root / RESULTS_PAGE, marker), run_block(root, run_dir, marker, False)
+    )
     if diffs:
         print(
             f"{run_dir} does not reproduce {RESULTS_PAGE} block {marker!r} ({len(diffs)} lines differ; first: "
@@ -115,7 +117,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--root", type=Path, default=ROOT, help="the repository to update (default: this one)")
     ap.add_argument(
-        "--check", action="store_true", help="change nothing; exit 1 if the run's block differs from the page's"
+        "--check",
+        action="store_true",
+        help="change nothing; exit 1 if the run's block differs from the page's",
     )
     args = ap.parse_args(argv)
     if args.headline:

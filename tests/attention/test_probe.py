@@ -131,3 +131,46 @@ def test_plain_pytorch_multihead_attention_adapter():
     mha = model.layers[1].self_attn
     _, w = mha(h, h, h, key_padding_mask=pad, need_weights=True, average_attn_weights=False)
     torch.testing.assert_close(probe.rows(1), w[:, :, [0, 1]][..., 2:7], atol=1e-6, rtol=1e-5)
+
+
+class CheckpointedModel(TinyModel):
+    """TinyModel whose layers run under torch.utils.checkpoint (non-reentrant)."""
+
+    def forward(self, x, mask=None):
+        for layer in self.layers:
+            x = torch.utils.checkpoint.checkpoint(layer, x, mask, use_reentrant=False)
+        return x
+
+
+def _probe_grads(model, x, gaze):
+    spec = ProbeSpec(queries=[0, 1], keys=slice(2, 8), layers=(1, 2))
+    with AttentionProbe(model, spec, adapter="tap") as probe:
+        model(x)
+    term, _ = gaze_loss(gaze, probe.distribution())
+    term.backward()
+    return [torch.zeros_like(p) if p.grad is None else p.grad.clone() for p in model.parameters()]
+
+
+def test_probe_under_non_reentrant_checkpointing_keeps_the_gradient():
+    """The probe's ops keep their own saved tensors: the checkpoint does not count them (no CheckpointError on
+    recomputation) and the gaze gradient equals the one without checkpointing."""
+    torch.manual_seed(0)
+    plain = TinyModel()
+    ckpt = CheckpointedModel()
+    ckpt.load_state_dict(plain.state_dict())
+    x = torch.randn(2, 10, 16)
+    gaze = torch.softmax(torch.randn(2, 6), -1)
+    for a, b in zip(_probe_grads(plain, x, gaze), _probe_grads(ckpt, x, gaze), strict=True):
+        torch.testing.assert_close(b, a, rtol=1e-5, atol=1e-7)
+    assert ckpt.layers[1].qkv.weight.grad.abs().sum() > 0
+
+
+def test_mean_rows_is_the_unnormalised_distribution():
+    torch.manual_seed(0)
+    model = TinyModel()
+    with AttentionProbe(model, ProbeSpec(queries=[0], keys=slice(2, 8)), adapter="tap") as probe:
+        model(torch.randn(2, 10, 16))
+    raw = probe.mean_rows()
+    assert torch.all(raw.sum(-1) < 1)
+    torch.testing.assert_close(probe.distribution(), raw / raw.sum(-1, keepdim=True))
+    torch.testing.assert_close(probe.patch_mass(), raw.sum(-1).detach())

@@ -13,6 +13,11 @@ instance are wrapped (instance attributes shadowing the class methods, removed o
 
 Prefix layout (lerobot 0.6.1 `VLAFlowMatching.embed_prefix`): for each camera in order, [2 special tokens if
 add_image_special_tokens] + its image tokens + [1 special token], then language, then state.
+
+Gradient checkpointing: the probe keeps its own saved tensors (`gazereg.attention.probe.own_saved_tensors`), so
+the capture works inside non-reentrant `torch.utils.checkpoint` regions; a layer run without autograd inside a
+grad-enabled training forward (reentrant checkpointing) raises a UsageError instead of giving a gaze term with
+no gradient. (SmolVLA 0.6.1 itself has no gradient-checkpointing option.)
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from gazereg.attention.probe import AttentionProbe, ProbeSpec
+from gazereg.attention.probe import AttentionProbe, ProbeSpec, require_grad_mode
 
 
 @dataclass
@@ -40,6 +45,7 @@ class _State:
     calls: int = 0
     probe: AttentionProbe | None = None
     keys: Tensor | None = None
+    grad: bool = False  # autograd was on (and the model training) when the capture started
 
 
 class SmolVLACapture:
@@ -79,6 +85,12 @@ class SmolVLACapture:
             raise RuntimeError("no attention captured: run the policy's forward inside capture() first")
         return self.state.probe.distribution(eps)
 
+    def raw_attention(self) -> Tensor:
+        """(B, n_image_tokens) as `attention()` but NOT renormalised: its row sum is the image mass in [0, 1]."""
+        if self.state is None or self.state.probe is None:
+            raise RuntimeError("no attention captured: run the policy's forward inside capture() first")
+        return self.state.probe.mean_rows()
+
     def patch_mass(self) -> Tensor:
         """(B,) attention mass the action tokens put on the camera's image tokens, before renormalisation."""
         return self.state.probe.patch_mass()
@@ -93,6 +105,7 @@ class SmolVLACapture:
             camera_index=camera_index,
             layers=self.layers,
             special=bool(self.model.config.add_image_special_tokens),
+            grad=torch.is_grad_enabled() and self.model.training,
         )
         self.state = state
         orig_embed = vwe.embed_image
@@ -130,6 +143,7 @@ class SmolVLACapture:
             call = state.calls
             state.calls += 1
             if state.expert_call is not None and call == state.expert_call:
+                require_grad_mode(state.grad, f"SmolVLA layer {state.layer}")
                 self._record(state, attention_mask, head_dim, query_states, key_states)
             return out
 

@@ -2,7 +2,10 @@
 plus, in training, weight * KL(gaze || attention of the action expert's tokens to one camera's image tokens).
 
 The loss dict gains `loss/action` (SmolVLA's own loss), `loss/gaze_kl` (the unweighted divergence),
-`gaze/weight`, `gaze/valid_frac` and `gaze/patch_mass`; lerobot-train logs every scalar of it.
+`gaze/weight`, `gaze/valid_frac` and `gaze/patch_mass` (the attention mass on the camera's image tokens, in
+[0, 1]: a falling KL with a collapsing mass means the term is met by looking away from the image); lerobot-train
+logs every scalar of it. With `gaze_target_mass=m` (0 < m <= 1) the term is the mass variant
+(gazereg.integrations.gaze_mass): KL over the image tokens plus one non-image bin with target mass m.
 
 Where the gaze comes from, per training batch:
 1. the batch's `gaze_key` column (kept through the pre-processor by this plugin's processor factory);
@@ -22,11 +25,12 @@ import torch
 from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
 from torch import Tensor
 
+from gazereg.integrations.gaze_mass import check_target_mass, gaze_mass_kl, gaze_mass_loss
 from gazereg.losses import gaze_kl, gaze_loss
 
 from .capture import SmolVLACapture
 from .configuration_smolvla_gaze import SmolVLAGazeConfig
-from .gaze_targets import gaze_distribution, smolvla_geometry
+from .gaze_targets import gaze_distribution, gaze_valid_flag, smolvla_geometry
 
 log = logging.getLogger(__name__)
 
@@ -94,7 +98,7 @@ class SmolVLAGazePolicy(SmolVLAPolicy):
             return values[pos]
         raise KeyError(
             f"the training batch has no gaze column {key!r} (keys: {sorted(batch)}); store gaze in the data set "
-            "under gaze.* and train with --policy.type=smolvla_gaze (its pre-processor keeps the column)"
+            "under gaze.* and train with a *_gaze policy type (its pre-processor keeps the column)"
         )
 
     # ----- training ------------------------------------------------------------------------------------------
@@ -119,17 +123,12 @@ class SmolVLAGazePolicy(SmolVLAPolicy):
                 f"(input {geom.input_hw}, patch {geom.patch_size} px, pixel shuffle {geom.pixel_shuffle}) has "
                 f"{geom.n_patches}: the camera/grid mapping does not match the model"
             )
-        attention = self.gaze_capture.attention()
-        gaze, valid = gaze_distribution(column, geom, flip, cfg.gaze_sigma, src_hw)
-        gaze, valid = gaze.to(attention.device), valid.to(attention.device)
+        gaze, valid = gaze_distribution(
+            column, geom, flip, cfg.gaze_sigma, src_hw, valid=gaze_valid_flag(batch, cfg.gaze_key)
+        )
+        kl, per_sample = self._gaze_term(gaze, valid, reduction == "none")
         w = float(cfg.gaze_weight)
-        if reduction == "none":
-            per_sample = gaze_kl(gaze, attention, kind=cfg.gaze_divergence) * valid
-            kl = per_sample.sum() / valid.sum().clamp_min(1)
-            total = loss + w * per_sample
-        else:
-            kl, _ = gaze_loss(gaze, attention, valid, kind=cfg.gaze_divergence)
-            total = loss + w * kl
+        total = loss + w * (per_sample if reduction == "none" else kl)
         loss_dict.update(
             {
                 "loss/action": float(loss.detach().mean()),
@@ -140,3 +139,22 @@ class SmolVLAGazePolicy(SmolVLAPolicy):
             }
         )
         return total, loss_dict
+
+    def _gaze_term(self, gaze: Tensor, valid: Tensor, per_sample: bool) -> tuple[Tensor, Tensor | None]:
+        """(mean divergence over valid samples, (B,) masked per-sample divergence or None) for gaze (B, N)."""
+        kind = self.config.gaze_divergence
+        mass = self.config.gaze_target_mass
+        if mass is None:
+            attention = self.gaze_capture.attention()
+            gaze, valid = gaze.to(attention.device), valid.to(attention.device)
+            if per_sample:
+                rows = gaze_kl(gaze, attention, kind=kind) * valid
+                return rows.sum() / valid.sum().clamp_min(1), rows
+            return gaze_loss(gaze, attention, valid, kind=kind)[0], None
+        mass = check_target_mass(mass)
+        raw = self.gaze_capture.raw_attention()
+        gaze, valid = gaze.to(raw.device), valid.to(raw.device)
+        if per_sample:
+            rows = gaze_mass_kl(gaze, raw, mass, kind=kind) * valid
+            return rows.sum() / valid.sum().clamp_min(1), rows
+        return gaze_mass_loss(gaze, raw, mass, valid, kind=kind)[0], None

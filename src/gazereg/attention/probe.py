@@ -14,6 +14,7 @@ for `torch.nn.MultiheadAttention`.
 
 from __future__ import annotations
 
+import contextlib
 import contextvars
 import math
 from collections.abc import Callable, Sequence
@@ -23,6 +24,8 @@ from typing import Any, Literal
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+
+from gazereg.runtime.errors import UsageError
 
 _ACTIVE: contextvars.ContextVar[AttentionProbe | None] = contextvars.ContextVar("gazereg_probe", default=None)
 
@@ -76,6 +79,33 @@ def attention_rows(
         m = mask[..., qi, :] if mask.shape[-2] == Tq else mask  # a (.., 1, Tk) mask broadcasts over rows
         logits = logits.masked_fill(~m, float("-inf")) if m.dtype == torch.bool else logits + m.float()
     return torch.softmax(logits, dim=-1)
+
+
+def _keep(t: Tensor) -> Tensor:
+    return t
+
+
+def own_saved_tensors() -> contextlib.AbstractContextManager[None]:
+    """Inside, tensors saved for backward are kept as they are, not handed to an enclosing saved-tensor hook.
+
+    The probe's extra ops (gather, q k^T, softmax) run inside the model's layers; under non-reentrant gradient
+    checkpointing (`torch.utils.checkpoint(use_reentrant=False)`, transformers' default) the checkpoint's hook
+    would count their saved tensors and find fewer on recomputation (the capture is not repeated in backward),
+    failing with CheckpointError. Kept outside the checkpoint, they cost a little memory on the probed layers
+    only, and their gradient still reaches q and k through the recomputed region."""
+    return torch.autograd.graph.saved_tensors_hooks(_keep, _keep)
+
+
+def require_grad_mode(expect_grad: bool, where: str) -> None:
+    """Raise when the capture expects a gradient but runs with autograd off: reentrant gradient checkpointing
+    (`use_reentrant=True`) runs the checkpointed layers under no_grad, so the captured attention would have no
+    gradient and the gaze term would be logged but never optimised."""
+    if expect_grad and not torch.is_grad_enabled():
+        raise UsageError(
+            f"gaze capture in {where} ran without autograd inside a grad-enabled forward: reentrant gradient "
+            "checkpointing (use_reentrant=True) gives the gaze term no gradient; use non-reentrant checkpointing, "
+            "e.g. model.gradient_checkpointing_enable(gradient_checkpointing_kwargs={'use_reentrant': False})"
+        )
 
 
 def tap(layer: int, q: Tensor, k: Tensor, mask: Tensor | None = None, scale: float | None = None) -> None:
@@ -151,6 +181,10 @@ class AttentionProbe:
     ) -> None:
         if not self.wants(layer):
             return
+        with own_saved_tensors():
+            self._record(layer, q, k, mask, scale)
+
+    def _record(self, layer: int, q: Tensor, k: Tensor, mask: Tensor | None, scale: float | None) -> None:
         probs = attention_rows(q, k, self.spec.queries, mask, scale)  # (B, H, nq, Tk)
         keys = self.spec.keys
         if isinstance(keys, Tensor) and keys.ndim == 2:
@@ -192,10 +226,15 @@ class AttentionProbe:
                     f"the attention probe saw no attention on layer(s) {missing}; saw {self.layers}"
                 )
 
+    def mean_rows(self) -> Tensor:
+        """(B, n_keys): attention averaged over heads, queries and layers, NOT renormalised (its row sum is the
+        mass on the keys, in [0, 1] for distinct keys); differentiable."""
+        self._require()
+        return torch.stack([self._rows[i].mean(dim=(1, 2)) for i in self.layers]).mean(0)
+
     def distribution(self, eps: float = 1e-12) -> Tensor:
         """(B, n_keys): attention averaged over heads, queries and layers, renormalised over the keys."""
-        self._require()
-        mean = torch.stack([self._rows[i].mean(dim=(1, 2)) for i in self.layers]).mean(0)
+        mean = self.mean_rows()
         return mean / mean.sum(-1, keepdim=True).clamp_min(eps)
 
 
@@ -262,15 +301,16 @@ def attach_multihead_attention(model: nn.Module, probe: AttentionProbe) -> list[
                 return
             query = args[0] if args else kwargs["query"]
             key = args[1] if len(args) > 1 else kwargs["key"]
-            q, k = _mha_qk(mod, query, key)
-            is_causal = kwargs.get("is_causal", False)
-            attn_mask = kwargs.get("attn_mask", args[5] if len(args) > 5 else None)
-            kpm = kwargs.get("key_padding_mask", args[3] if len(args) > 3 else None)
-            mask = _mha_mask(attn_mask, kpm, q.shape[0], q.shape[1])
-            if mask is None and is_causal:
-                Tq, Tk = q.shape[2], k.shape[2]
-                mask = torch.ones(Tq, Tk, dtype=torch.bool, device=q.device).tril()
-            probe.record(_layer, q, k, mask)
+            with own_saved_tensors():
+                q, k = _mha_qk(mod, query, key)
+                is_causal = kwargs.get("is_causal", False)
+                attn_mask = kwargs.get("attn_mask", args[5] if len(args) > 5 else None)
+                kpm = kwargs.get("key_padding_mask", args[3] if len(args) > 3 else None)
+                mask = _mha_mask(attn_mask, kpm, q.shape[0], q.shape[1])
+                if mask is None and is_causal:
+                    Tq, Tk = q.shape[2], k.shape[2]
+                    mask = torch.ones(Tq, Tk, dtype=torch.bool, device=q.device).tril()
+                probe.record(_layer, q, k, mask)
 
         handles.append(m.register_forward_pre_hook(hook, with_kwargs=True))
         layer += 1

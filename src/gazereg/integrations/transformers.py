@@ -23,6 +23,19 @@ Which attention
   the prompt holds them, each block mapped row-major onto its camera's `PatchGeometry` grid (pixel-shuffled
   grids for Idefics3/SmolVLM; Llava's CLS token is skipped under `vision_feature_select_strategy="full"`).
 - Heads and queries are averaged per layer, layers averaged, then renormalised over each camera's patch keys.
+
+Gradient checkpointing: non-reentrant (`gradient_checkpointing_enable()`, transformers' default) works, the
+term's gradient is the one without checkpointing; reentrant (`use_reentrant=True`) runs the layers without
+autograd, so the capture raises a UsageError at the first training forward instead of logging a term that is
+never optimised.
+
+Forwards without a gaze target are skipped: a forward whose input_ids hold no image tokens (or that has no
+input_ids) and that runs under no_grad or continues a non-empty cache (`generate()`'s decoding steps, PI0
+`sample_actions()`'s denoising steps) captures nothing; the last captured forward stays readable.
+
+Image mass: `info["gaze/patch_mass"]` is the attention mass on the present cameras' patch tokens (in [0, 1]).
+`target_mass=m` switches the term to the mass variant (gazereg.integrations.gaze_mass), which also pulls that
+mass towards m, so the KL cannot be met by looking away from the image.
 """
 
 from __future__ import annotations
@@ -35,6 +48,7 @@ import torch
 from torch import Tensor, nn
 
 from gazereg.attention.probe import AttentionProbe, ProbeSpec
+from gazereg.integrations.gaze_mass import check_target_mass, gaze_mass_loss
 from gazereg.integrations.transformers_capture import (
     CAPTURE,
     Capture,
@@ -80,6 +94,8 @@ class GazeRegularizer:
             or explicit positions along the regularized attention's query axis: a (n_queries,) sequence, a
             (B, n_queries) tensor, or a callable(forward_kwargs) -> (B, n_queries).
         divergence: "forward" KL(gaze || attention) (default), "reverse" or "js".
+        target_mass: None (default): the divergence over each camera's renormalised patch attention; a number m
+            in (0, 1]: the mass variant over patches + one non-image bin with target mass m on the image.
 
     Usage: `with reg: out = model(**batch)`, then `term, info = reg.loss(gaze, valid)`; `loss = out.loss + term`.
     """
@@ -93,6 +109,7 @@ class GazeRegularizer:
         queries: QuerySpec | None = None,
         divergence: Divergence = "forward",
         family: ModelFamily | str | None = None,
+        target_mass: float | None = None,
     ):
         self.model = model
         self.family = FAMILIES[family] if isinstance(family, str) else (family or detect_family(model))
@@ -117,6 +134,8 @@ class GazeRegularizer:
         self.schedule = weight if isinstance(weight, WeightSchedule) else WeightSchedule(weight=float(weight))
         self.queries = self.family.default_queries if queries is None else queries
         self.divergence = divergence
+        self.target_mass = None if target_mass is None else check_target_mass(target_mass)
+        self.skipped = 0  # forwards skipped since __enter__ (no image tokens: decoding / denoising steps)
         self.base = base_of(self.config._attn_implementation)
         register_gaze_attention(self.base)  # raises for unsupported implementations
         self.probe: AttentionProbe | None = None
@@ -195,6 +214,9 @@ class GazeRegularizer:
         except TypeError:
             inputs = dict(kwargs)
         ids = inputs.get("input_ids")
+        if self._no_gaze_target(ids, inputs.get("past_key_values")):
+            self.skipped += 1
+            return
         if ids is None:
             raise ValueError(
                 "gaze capture needs `input_ids` in the forward call to locate the image tokens "
@@ -210,9 +232,20 @@ class GazeRegularizer:
         probe.__enter__()
         self.probe = probe
         self._capture = Capture(
-            probe=probe, layer_of={id(m): i for i, m in enumerate(self.modules)}, queries=queries
+            probe=probe,
+            layer_of={id(m): i for i, m in enumerate(self.modules)},
+            queries=queries,
+            grad=torch.is_grad_enabled(),
         )
         self._cap_token = CAPTURE.set(self._capture)
+
+    def _no_gaze_target(self, ids: Tensor | None, past: Any) -> bool:
+        """True for a forward with nothing to regularize: no image tokens in input_ids (or no input_ids) and
+        either autograd off (inference, generate) or a non-empty cache (a decoding / denoising step)."""
+        if ids is not None and bool((ids == self.family.image_token_id(self.model)).any()):
+            return False
+        cached = past is not None and (not hasattr(past, "get_seq_length") or int(past.get_seq_length()) > 0)
+        return cached or not torch.is_grad_enabled()
 
     def _post_forward(self, module: nn.Module, args: tuple, kwargs: dict, output: Any) -> None:
         self._close_probe()
@@ -230,6 +263,7 @@ class GazeRegularizer:
         if self._hooks:
             raise RuntimeError("this GazeRegularizer is already capturing")
         self.probe = None
+        self.skipped = 0
         self._hooks = [
             self.model.register_forward_pre_hook(self._pre_forward, with_kwargs=True),
             self.model.register_forward_hook(self._post_forward, with_kwargs=True),
@@ -245,29 +279,41 @@ class GazeRegularizer:
     # ----- results ---------------------------------------------------------------------------------------------
     def _require_probe(self) -> AttentionProbe:
         if self.probe is None:
+            why = (
+                f": the {self.skipped} forward(s) inside held no image tokens (generate()'s decoding steps and "
+                "PI0 sample_actions() are skipped); run a training forward with input_ids holding the images"
+                if self.skipped
+                else ""
+            )
             raise RuntimeError(
-                "no attention captured: run the model's forward inside `with regularizer:` first"
+                f"no attention captured: run the model's forward inside `with regularizer:` first{why}"
             )
         return self.probe
 
-    def attention(self, eps: float = 1e-12) -> dict[str, Tensor]:
-        """{camera: (B, n_patches)} attention of the last captured forward, renormalised per camera."""
-        probe = self._require_probe()
-        mean = torch.stack([probe.rows(i).mean(dim=(1, 2)) for i in self._checked_layers(probe)]).mean(0)
+    def raw_attention(self) -> dict[str, Tensor]:
+        """{camera: (B, n_patches)} attention of the last captured forward, averaged over heads, queries and
+        layers but NOT renormalised (row sum = the camera's image mass); an absent camera's rows are 0."""
+        mean = self._require_probe().mean_rows()
         out, offset = {}, 0
-        for name, geom in self.cameras.items():
+        for c, (name, geom) in enumerate(self.cameras.items()):
             part = mean[:, offset : offset + geom.n_patches]
-            out[name] = part / part.sum(-1, keepdim=True).clamp_min(eps)
+            if self.present is not None:  # absent slots point at key 0: not the camera's mass
+                part = part * self.present[:, c].to(device=part.device, dtype=part.dtype)[:, None]
+            out[name] = part
             offset += geom.n_patches
         return out
 
-    def _checked_layers(self, probe: AttentionProbe) -> list[int]:
-        probe._require()
-        return probe.layers
+    def attention(self, eps: float = 1e-12) -> dict[str, Tensor]:
+        """{camera: (B, n_patches)} attention of the last captured forward, renormalised per camera."""
+        return {
+            name: part / part.sum(-1, keepdim=True).clamp_min(eps)
+            for name, part in self.raw_attention().items()
+        }
 
     def patch_mass(self) -> Tensor:
-        """(B,) mean attention mass the queries put on all cameras' patch tokens (before renormalisation)."""
-        return self._require_probe().patch_mass()
+        """(B,) attention mass the queries put on the present cameras' patch tokens (before renormalisation),
+        in [0, 1]; detached."""
+        return torch.stack([a.sum(-1) for a in self.raw_attention().values()]).sum(0).detach()
 
     def loss(
         self,
@@ -280,9 +326,10 @@ class GazeRegularizer:
         gaze: (B, n_patches) for a single camera, or {camera: (B, n_patches)} (cameras missing from the dict are
             not regularized). valid: (B,) bool or {camera: (B,) bool}; absent camera slots are always invalid.
         Returns (weighted loss, info) with info["loss/gaze_kl"] (unweighted), info["gaze/weight"],
-        info["gaze/valid_frac"] and info["gaze/patch_mass"].
+        info["gaze/valid_frac"] and info["gaze/patch_mass"] (attention mass on the present cameras' patches).
         """
-        att = self.attention()
+        raw = self.raw_attention()
+        att = {c: a / a.sum(-1, keepdim=True).clamp_min(1e-12) for c, a in raw.items()}
         if isinstance(gaze, Tensor):
             if len(self.cameras) != 1:
                 raise ValueError(
@@ -311,7 +358,10 @@ class GazeRegularizer:
                 v = valid[cam].to(device=a.device, dtype=torch.bool)
             if self.present is not None:
                 v = v & self.present[:, names.index(cam)].to(a.device)
-            term, info = gaze_loss(g.to(a.device), a, v, kind=self.divergence)
+            if self.target_mass is None:
+                term, info = gaze_loss(g.to(a.device), a, v, kind=self.divergence)
+            else:
+                term, info = gaze_mass_loss(g, raw[cam], self.target_mass, v, kind=self.divergence)
             terms.append(term)
             fracs.append(info["gaze/valid_frac"])
         kl = torch.stack(terms).mean()
@@ -320,6 +370,6 @@ class GazeRegularizer:
             "loss/gaze_kl": float(kl.detach()),
             "gaze/weight": float(w),
             "gaze/valid_frac": float(sum(fracs) / len(fracs)),
-            "gaze/patch_mass": float(self.patch_mass().mean()),
+            "gaze/patch_mass": float(torch.stack([a.detach().sum(-1) for a in raw.values()]).sum(0).mean()),
         }
         return w * kl, info

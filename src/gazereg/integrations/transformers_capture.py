@@ -23,7 +23,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from gazereg.attention.probe import AttentionProbe
+from gazereg.attention.probe import AttentionProbe, own_saved_tensors, require_grad_mode
 
 _PREFIX = "gazereg_"
 _SUPPORTED_BASES = ("sdpa", "eager")
@@ -38,6 +38,7 @@ class Capture:
     layer_of: dict[int, int]  # id(attention module) -> layer index
     queries: Tensor  # (B, n_queries) positions along the attention's query axis
     active: bool = True  # False once the forward is over (gradient-checkpoint recomputation is ignored)
+    grad: bool = False  # autograd was on when the forward started (the captured rows must carry a gradient)
 
 
 CAPTURE: ContextVar[Capture | None] = ContextVar("gazereg_hf_capture", default=None)
@@ -108,6 +109,24 @@ def _observe(
     layer = cap.layer_of.get(id(module))
     if layer is None or not cap.probe.wants(layer):
         return
+    if module.training:
+        require_grad_mode(cap.grad, f"{type(module).__name__} layer {layer}")
+    with own_saved_tensors():  # not counted by an enclosing non-reentrant checkpoint
+        _record(cap, base, layer, module, query, key, mask, args, kwargs)
+
+
+def _record(
+    cap: Capture,
+    base: str,
+    layer: int,
+    module: nn.Module,
+    query: Tensor,
+    key: Tensor,
+    mask: Tensor | None,
+    args: tuple,
+    kwargs: dict,
+) -> None:
+    """Select the capture's query rows (and their mask rows) and hand them to the probe."""
     if kwargs.get("softcap") is not None:
         raise NotImplementedError(
             f"gaze capture does not support attention logit soft-capping (layer {layer})"

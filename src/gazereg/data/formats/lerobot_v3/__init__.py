@@ -34,7 +34,9 @@ episode is always in the data set's own frame.
 Modules: gazereg.data.formats.lerobot_v3.metadata (meta/ and the data parquet files), gazereg.data.formats.lerobot_v3.frames
 (video and image frames), gazereg.data.formats.lerobot_v3.dataset (`LeRobotV3Dataset`: one episode at a time), and
 this one (the import). The priors go back out as a sidecar next to the data set: gazereg.data.formats.lerobot_v3.export
-(`export_priors_lerobot`, `read_priors_lerobot`).
+(`export_priors_lerobot`, `read_priors_lerobot`), or as features gaze.<camera>.heatmap / gaze.<camera>.valid of a
+new data set version that `lerobot.datasets.LeRobotDataset` loads: gazereg.data.formats.lerobot_v3.gaze_feature
+(`write_gaze_dataset`, `gazereg import write-gaze`).
 """
 
 from __future__ import annotations

@@ -1,0 +1,139 @@
+"""Differentiable capture of pi0 / pi0.5's action-expert attention to one camera's image tokens.
+
+In training, lerobot's `PaliGemmaWithExpertModel` runs every layer jointly (`compute_layer_complete`): the prefix
+(images, language) and the expert's suffix (pi0: state + action tokens; pi0.5: action tokens) share one attention,
+computed by `transformers.models.gemma.modeling_gemma.eager_attention_forward`, looked up on that module at each
+call. Inside `PiCapture.capture()` two things are wrapped (both restored on exit; nothing is copied):
+
+- the model's `embed_image` (instance attribute): counts the image tokens of each camera (prefix layout);
+- `modeling_gemma.eager_attention_forward` (module attribute): runs the original (outputs bit-identical), numbers
+  the call as the layer index, and hands the last `n_queries` query rows (the action tokens), the keys and the
+  additive mask to a `gazereg.attention.AttentionProbe`, which recomputes softmax(q k^T * scaling + mask) exactly
+  as the eager function does and keeps the camera's image-token columns.
+
+Prefix layout (lerobot 0.6.1 `PI0Pytorch.embed_prefix` / `PI05Pytorch.embed_prefix`): the image tokens of each
+camera in order (present cameras, then the padded missing ones), no special tokens, then the language tokens.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+from transformers.models.gemma import modeling_gemma
+
+from gazereg.attention.probe import AttentionProbe, ProbeSpec
+
+
+@dataclass
+class _State:
+    camera_index: int
+    n_queries: int
+    layers: tuple[int, ...]
+    image_tokens: list[int] = field(default_factory=list)  # tokens per embed_image call, in camera order
+    calls: int = 0  # eager attention calls so far = the index of the next layer
+    probe: AttentionProbe | None = None
+    keys: Tensor | None = None
+
+
+class PiCapture:
+    """Capture of a `PI0Pytorch` / `PI05Pytorch` model's action-token attention to one camera's image tokens.
+
+    model: the policy's core model (`policy.model`).
+    layers: layer indices (0..depth-1); None = the second half of the layers.
+    """
+
+    def __init__(self, model: nn.Module, layers: list[int] | tuple[int, ...] | None = None):
+        self.model = model
+        self.pwe = model.paligemma_with_expert
+        self.depth = len(self.pwe.paligemma.model.language_model.layers)
+        if layers is None:
+            layers = range(self.depth // 2, self.depth)
+        self.layers = tuple(int(i) for i in layers)
+        bad = [i for i in self.layers if not 0 <= i < self.depth]
+        if bad or not self.layers:
+            raise ValueError(
+                f"gaze layers {list(self.layers)} invalid: the model has layers 0..{self.depth - 1}"
+            )
+        self.state: _State | None = None
+
+    # ----- results ----------------------------------------------------------------------------------------
+    @property
+    def image_tokens(self) -> list[int]:
+        """Image tokens of each camera in the last captured forward."""
+        return [] if self.state is None else list(self.state.image_tokens)
+
+    def attention(self, eps: float = 1e-12) -> Tensor:
+        """(B, n_image_tokens) attention of the action tokens to the camera's image tokens, averaged over heads,
+        action tokens and layers and renormalised over the camera's tokens (row-major over its patch grid)."""
+        if self.state is None or self.state.probe is None:
+            raise RuntimeError("no attention captured: run the policy's forward inside capture() first")
+        return self.state.probe.distribution(eps)
+
+    def patch_mass(self) -> Tensor:
+        """(B,) attention mass the action tokens put on the camera's image tokens, before renormalisation."""
+        return self.state.probe.patch_mass()
+
+    # ----- capture ------------------------------------------------------------------------------------------
+    @contextlib.contextmanager
+    def capture(self, camera_index: int, n_queries: int) -> Iterator[PiCapture]:
+        """Capture during the training forward run inside. `camera_index`: the camera's position among the
+        images the policy embeds (its order in `config.image_features` among those present in the batch);
+        `n_queries`: the action tokens at the end of the sequence (`config.chunk_size`)."""
+        state = _State(camera_index=camera_index, n_queries=n_queries, layers=self.layers)
+        self.state = state
+        pwe = self.pwe
+        orig_embed = pwe.embed_image
+        orig_eager = modeling_gemma.eager_attention_forward
+
+        def embed_image(image: Tensor) -> Tensor:
+            out = orig_embed(image)
+            state.image_tokens.append(int(out.shape[1]))
+            return out
+
+        def eager(module, query, key, value, attention_mask, scaling, *args: Any, **kwargs: Any):
+            out = orig_eager(module, query, key, value, attention_mask, scaling, *args, **kwargs)
+            layer = state.calls
+            state.calls += 1
+            if layer in state.layers:
+                self._record(state, layer, query, key, attention_mask, scaling)
+            return out
+
+        pwe.embed_image = embed_image
+        modeling_gemma.eager_attention_forward = eager
+        try:
+            yield self
+        finally:
+            modeling_gemma.eager_attention_forward = orig_eager
+            pwe.__dict__.pop("embed_image", None)
+        if state.calls != self.depth:
+            raise RuntimeError(
+                f"the forward ran {state.calls} eager attention calls, expected one per layer ({self.depth}): "
+                "this lerobot version's pi0 forward differs from the one the capture was written for"
+            )
+
+    def _keys(self, state: _State, n_keys: int, device: torch.device) -> Tensor:
+        counts = state.image_tokens
+        c = state.camera_index
+        if c >= len(counts):
+            raise RuntimeError(f"camera {c} was not embedded: the prefix holds {len(counts)} image(s)")
+        start = sum(counts[:c])
+        if start + counts[c] > n_keys:
+            raise RuntimeError(
+                f"image tokens {start}..{start + counts[c]} exceed the {n_keys} attention keys"
+            )
+        return torch.arange(start, start + counts[c], device=device)
+
+    def _record(
+        self, state: _State, layer: int, q: Tensor, k: Tensor, mask: Tensor | None, scaling: float
+    ) -> None:
+        # q (B, H, L, D) after rotary, k (B, Hkv, S, D), mask (B, 1, L, S) additive float
+        if state.probe is None:
+            state.keys = self._keys(state, k.shape[2], k.device)
+            rows = slice(q.shape[2] - state.n_queries, q.shape[2])
+            state.probe = AttentionProbe(None, ProbeSpec(queries=rows, keys=state.keys, layers=state.layers))
+        state.probe.record(layer, q, k, mask, scaling)

@@ -1,0 +1,128 @@
+"""pi0 with gaze regularization: PI0Policy unchanged (same modules, same state dict, same inference), plus, in
+training, weight * KL(gaze || attention of the action expert's action tokens to one camera's image tokens).
+
+The loss dict gains `loss/action` (pi0's own loss), `loss/gaze_kl` (the unweighted divergence), `gaze/weight`,
+`gaze/valid_frac` and `gaze/patch_mass`; lerobot-train logs every scalar of it. The gaze column comes from the
+batch or, when the pre-processor dropped it, from the data set's parquet files (as for `smolvla_gaze`).
+
+Image geometry (lerobot 0.6.1 `_preprocess_images`): a frame that is not `image_resolution` goes through
+`resize_with_pad_torch` (keep the aspect ratio, centred padding), then SigLIP patches (`patch_size` px, no pixel
+shuffle): one image token per patch, row-major.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from lerobot.policies.pi0.modeling_pi0 import PI0Policy
+from torch import Tensor
+
+from gazereg.losses import gaze_kl, gaze_loss
+from gazereg.patches import PatchGeometry
+
+from .capture_pi0 import PiCapture
+from .configuration_pi0_gaze import PI0GazeConfig
+from .gaze_targets import gaze_distribution, gaze_valid_flag
+from .modeling_smolvla_gaze import SmolVLAGazePolicy
+
+log = logging.getLogger(__name__)
+
+
+def pi_geometry(src_hw: tuple[int, int], input_hw: tuple[int, int], patch_size: int) -> PatchGeometry:
+    """The PatchGeometry of pi0/pi05 for a stored (height, width) frame and `image_resolution` (height, width)."""
+    H, W = src_hw
+    h_in, w_in = input_hw
+    if H * w_in == W * h_in:  # same aspect (or same size): a plain resize, no padding
+        return PatchGeometry(input_hw=(h_in, w_in), patch_size=patch_size)
+    return PatchGeometry(
+        input_hw=(h_in, w_in), patch_size=patch_size, src_hw=(H, W), resize="fit", pad="centre"
+    )
+
+
+class PiGazeMixin:
+    """The gaze term of `pi0_gaze` / `pi05_gaze`, mixed in before PI0Policy / PI05Policy."""
+
+    # the gaze column lookup (batch, else the data set's parquet by `index`) is smolvla_gaze's
+    _gaze_column = SmolVLAGazePolicy._gaze_column
+
+    def _init_gaze(self, kwargs: dict[str, Any]) -> None:
+        self.gaze_capture = PiCapture(self.model, self.config.gaze_layers)
+        meta = kwargs.get("dataset_meta")
+        self._gaze_root = getattr(meta, "root", None)
+        self._gaze_table: tuple[Tensor, Tensor] | None = None
+        self._gaze_geometry: tuple[PatchGeometry, tuple[int, int]] | None = None
+
+    def _geometry(self) -> tuple[PatchGeometry, tuple[int, int]]:
+        if self._gaze_geometry is None:
+            cfg = self.config
+            shape = cfg.image_features[cfg.gaze_camera_key()].shape  # (C, H, W)
+            src_hw = (int(shape[-2]), int(shape[-1]))
+            patch = self.model.paligemma_with_expert.paligemma.config.vision_config.patch_size
+            h_in, w_in = (int(x) for x in cfg.image_resolution)
+            self._gaze_geometry = (pi_geometry(src_hw, (h_in, w_in), patch), src_hw)
+        return self._gaze_geometry
+
+    def forward(self, batch: dict[str, Tensor], reduction: str = "mean") -> tuple[Tensor, dict[str, Any]]:
+        cfg = self.config
+        if not self.training or cfg.gaze_weight == 0:
+            return super().forward(batch, reduction=reduction)
+        cam = cfg.gaze_camera_key()
+        present = [k for k in cfg.image_features if k in batch]
+        if cam not in present:
+            raise KeyError(f"gaze camera {cam!r} is missing from the batch (images present: {present})")
+        column, flag = self._gaze_column(batch), gaze_valid_flag(batch, cfg.gaze_key)
+        with self.gaze_capture.capture(present.index(cam), cfg.chunk_size):
+            loss, loss_dict = super().forward(batch, reduction=reduction)
+        return self._add_gaze_term(loss, loss_dict, column, flag, cam, reduction)
+
+    def _add_gaze_term(
+        self,
+        loss: Tensor,
+        loss_dict: dict[str, Any],
+        column: Tensor,
+        flag: Tensor | None,
+        cam: str,
+        reduction: str,
+    ) -> tuple[Tensor, dict[str, Any]]:
+        """loss () or (B,) + weight * divergence(gaze (B, n_tokens) || attention (B, n_tokens)); `flag` (B,)
+        bool: the gaze column's validity flag column, if the data set has one."""
+        cfg = self.config
+        geom, src_hw = self._geometry()
+        n_tokens = self.gaze_capture.image_tokens[self.gaze_capture.state.camera_index]
+        if n_tokens != geom.n_patches:
+            raise ValueError(
+                f"camera {cam!r} produced {n_tokens} image tokens but its geometry {geom.grid_hw} "
+                f"(input {geom.input_hw}, patch {geom.patch_size} px) has {geom.n_patches}: the camera/grid "
+                "mapping does not match the model"
+            )
+        attention = self.gaze_capture.attention()
+        gaze, valid = gaze_distribution(column, geom, False, cfg.gaze_sigma, src_hw, valid=flag)
+        gaze, valid = gaze.to(attention.device), valid.to(attention.device)
+        w = float(cfg.gaze_weight)
+        if reduction == "none":
+            per_sample = gaze_kl(gaze, attention, kind=cfg.gaze_divergence) * valid
+            kl = per_sample.sum() / valid.sum().clamp_min(1)
+            total = loss + w * per_sample
+        else:
+            kl, _ = gaze_loss(gaze, attention, valid, kind=cfg.gaze_divergence)
+            total = loss + w * kl
+        loss_dict.update(
+            {
+                "loss/action": float(loss.detach().mean()),
+                "loss/gaze_kl": float(kl.detach()),
+                "gaze/weight": w,
+                "gaze/valid_frac": float(valid.float().mean()),
+                "gaze/patch_mass": float(self.gaze_capture.patch_mass().mean()),
+            }
+        )
+        return total, loss_dict
+
+
+class PI0GazePolicy(PiGazeMixin, PI0Policy):
+    config_class = PI0GazeConfig
+    name = "pi0_gaze"
+
+    def __init__(self, config: PI0GazeConfig, **kwargs: Any):
+        super().__init__(config, **kwargs)
+        self._init_gaze(kwargs)
