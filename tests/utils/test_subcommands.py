@@ -109,7 +109,9 @@ def test_gazereg_import_and_viz_usage(capsys):
     assert "gazereg viz: unknown figure 'nope'" in capsys.readouterr().err
     assert data_cli.main([]) == 0
     out = capsys.readouterr().out
-    assert out.startswith("usage: gazereg import <lerobot|hdf5|export-priors|write-gaze> [options]\n\n  lerobot ")
+    assert out.startswith(
+        "usage: gazereg import <lerobot|hdf5|export-priors|write-gaze> [options]\n\n  lerobot "
+    )
     assert "gazereg import export-priors --store STORE" in out
     assert data_cli.main(["nope"]) == 2
     assert "gazereg import: unknown source 'nope'" in capsys.readouterr().err
