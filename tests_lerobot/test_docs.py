@@ -101,14 +101,17 @@ def test_readme_download_command_is_valid():
     assert r.returncode == 0 and "--local-dir" in r.stdout, r.stderr[-2000:]
 
 
-def test_train_help_shows_every_gaze_option(tmp_path):
-    from lerobot_policy_gazereg.configuration_smolvla_gaze import SmolVLAGazeConfig
+@pytest.mark.parametrize("policy_type", ["smolvla_gaze", "pi0_gaze", "pi05_gaze"])
+def test_train_help_shows_every_gaze_option(tmp_path, policy_type):
+    from lerobot.configs import PreTrainedConfig
+    from lerobot_policy_gazereg.gaze_common import GazeOptions
 
-    r = _run([str(BIN / "lerobot-train"), "--policy.type=smolvla_gaze", "--help"], tmp_path)
+    r = _run([str(BIN / "lerobot-train"), f"--policy.type={policy_type}", "--help"], tmp_path)
     assert r.returncode == 0, r.stderr[-3000:]
     lines = r.stdout.splitlines()
-    fields = [f.name for f in dataclasses.fields(SmolVLAGazeConfig) if f.name.startswith("gaze_")]
-    assert len(fields) == 7, fields
+    config_class = PreTrainedConfig.get_choice_class(policy_type)
+    fields = [f.name for f in dataclasses.fields(config_class) if f.name.startswith("gaze_")]
+    assert fields == [f.name for f in dataclasses.fields(GazeOptions)] and len(fields) == 7, fields
     for name in fields:
         at = [i for i, line in enumerate(lines) if line.strip().startswith(f"--policy.{name} ")]
         assert len(at) == 1, f"--policy.{name} not described in --help"

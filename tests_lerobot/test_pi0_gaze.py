@@ -187,6 +187,55 @@ def test_gaze_options_are_validated(tiny):
         _policies("pi05", gaze_layers=[2])
 
 
+def test_gaze_options_are_validated_as_for_smolvla(tiny):
+    """One validation for every gaze type (gaze_common.validate_gaze_options)."""
+    for kind in KINDS:
+        _, _, GC, _ = _classes(kind)
+        with pytest.raises(ValueError, match="gaze_weight must be a finite"):
+            GC(gaze_weight=float("nan"))
+        with pytest.raises(ValueError, match="gaze_target_mass"):
+            GC(gaze_target_mass=1.5)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_target_mass_variant(kind, tiny, dataset):
+    """gaze_target_mass=m: the term is gazereg's mass loss on the raw captured attention, per sample too, and
+    more image mass lowers it."""
+    from lerobot_policy_gazereg.gaze_targets import gaze_distribution
+
+    from gazereg.integrations.gaze_mass import gaze_mass_kl, gaze_mass_loss
+
+    _, P, _, _ = _classes(kind)
+    _, policy = _policies(kind)
+    batch = _batch(dataset)
+    policy.train()
+    torch.manual_seed(4)
+    _, plain = policy.forward(dict(batch))
+    policy.config.gaze_target_mass = 0.9
+    try:
+        torch.manual_seed(4)
+        _, info = policy.forward(dict(batch))
+        torch.manual_seed(4)
+        rows, _ = policy.forward(dict(batch), reduction="none")
+    finally:
+        del policy.config.gaze_target_mass
+    cap = policy.gaze_capture
+    raw = cap.raw_attention()
+    geom, src_hw = policy._geometry()
+    gaze, valid = gaze_distribution(batch["gaze.point"], geom, False, policy.config.gaze_sigma, src_hw)
+    want, _ = gaze_mass_loss(gaze, raw, 0.9, valid, kind=policy.config.gaze_divergence)
+    assert info["loss/gaze_kl"] == pytest.approx(float(want.detach()), rel=1e-5)
+    assert info["loss/gaze_kl"] != pytest.approx(plain["loss/gaze_kl"])
+    torch.manual_seed(4)
+    action_rows, _ = P.forward(policy, dict(batch), reduction="none")  # the plain pi0 loss per sample
+    per_sample = gaze_mass_kl(gaze, raw, 0.9, kind=policy.config.gaze_divergence)
+    torch.testing.assert_close(
+        rows.detach() - action_rows.detach(), per_sample.detach(), rtol=1e-5, atol=1e-6
+    )
+    (grad,) = torch.autograd.grad(rows.sum(), [cap.state.probe.rows(cap.layers[-1])])  # the last capture
+    assert info["gaze/patch_mass"] < 0.9 and float(grad.sum()) < 0  # more image mass lowers the term
+
+
 def test_geometry_pads_in_the_centre():
     from lerobot_policy_gazereg.modeling_pi0_gaze import pi_geometry
 

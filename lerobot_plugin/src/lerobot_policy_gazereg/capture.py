@@ -48,7 +48,54 @@ class _State:
     grad: bool = False  # autograd was on (and the model training) when the capture started
 
 
-class SmolVLACapture:
+class CaptureResults:
+    """What a capture gives after a captured forward (shared by `SmolVLACapture` and capture_pi0.`PiCapture`):
+    `self.state` holds the image tokens of each camera (`image_tokens`, in embedding order) and the
+    `AttentionProbe` (`probe`) of the last captured forward; None before the first."""
+
+    state: Any = None
+
+    @property
+    def image_tokens(self) -> list[int]:
+        """Image tokens of each camera in the last captured forward."""
+        return [] if self.state is None else list(self.state.image_tokens)
+
+    def _probe(self) -> AttentionProbe:
+        if self.state is None or self.state.probe is None:
+            raise RuntimeError("no attention captured: run the policy's forward inside capture() first")
+        return self.state.probe
+
+    def attention(self, eps: float = 1e-12) -> Tensor:
+        """(B, n_image_tokens) attention of the action tokens to the camera's image tokens, averaged over heads,
+        action tokens and layers and renormalised over the camera's tokens (row-major over its token grid)."""
+        return self._probe().distribution(eps)
+
+    def raw_attention(self) -> Tensor:
+        """(B, n_image_tokens) as `attention()` but NOT renormalised: its row sum is the image mass in [0, 1]."""
+        return self._probe().mean_rows()
+
+    def patch_mass(self) -> Tensor:
+        """(B,) attention mass the action tokens put on the camera's image tokens, before renormalisation."""
+        return self._probe().patch_mass()
+
+    @staticmethod
+    def _image_keys(
+        counts: list[int], camera: int, n_keys: int, device: torch.device, around: tuple[int, int] = (0, 0)
+    ) -> Tensor:
+        """(counts[camera],) key positions of the camera's image tokens in a prefix that holds, for each camera
+        in order, around[0] tokens + its counts[c] image tokens + around[1] tokens."""
+        if camera >= len(counts):
+            raise RuntimeError(f"camera {camera} was not embedded: the prefix holds {len(counts)} image(s)")
+        before, after = around
+        start = sum(before + n + after for n in counts[:camera]) + before
+        if start + counts[camera] > n_keys:
+            raise RuntimeError(
+                f"image tokens {start}..{start + counts[camera]} exceed the {n_keys} attention keys"
+            )
+        return torch.arange(start, start + counts[camera], device=device)
+
+
+class SmolVLACapture(CaptureResults):
     """Capture of `VLAFlowMatching`'s expert-to-image attention on chosen VLM layer indices.
 
     model: the policy's `VLAFlowMatching` (`policy.model`).
@@ -71,29 +118,6 @@ class SmolVLACapture:
                 f"gaze layers {list(self.layers)} invalid: the action expert attends at VLM layers {self.expert_layers}"
             )
         self.state: _State | None = None
-
-    # ----- results ----------------------------------------------------------------------------------------
-    @property
-    def image_tokens(self) -> list[int]:
-        """Image tokens of each camera in the last captured forward."""
-        return [] if self.state is None else list(self.state.image_tokens)
-
-    def attention(self, eps: float = 1e-12) -> Tensor:
-        """(B, n_image_tokens) attention of the action tokens to the camera's image tokens, averaged over heads,
-        action tokens and layers and renormalised over the camera's tokens (row-major over its token grid)."""
-        if self.state is None or self.state.probe is None:
-            raise RuntimeError("no attention captured: run the policy's forward inside capture() first")
-        return self.state.probe.distribution(eps)
-
-    def raw_attention(self) -> Tensor:
-        """(B, n_image_tokens) as `attention()` but NOT renormalised: its row sum is the image mass in [0, 1]."""
-        if self.state is None or self.state.probe is None:
-            raise RuntimeError("no attention captured: run the policy's forward inside capture() first")
-        return self.state.probe.mean_rows()
-
-    def patch_mass(self) -> Tensor:
-        """(B,) attention mass the action tokens put on the camera's image tokens, before renormalisation."""
-        return self.state.probe.patch_mass()
 
     # ----- capture ------------------------------------------------------------------------------------------
     @contextlib.contextmanager
@@ -162,19 +186,6 @@ class SmolVLACapture:
             ):
                 vwe.__dict__.pop(name, None)
 
-    def _keys(self, state: _State, n_keys: int, device: torch.device) -> Tensor:
-        counts = state.image_tokens
-        c = state.camera_index
-        if c >= len(counts):
-            raise RuntimeError(f"camera {c} was not embedded: the prefix holds {len(counts)} image(s)")
-        s0, s1 = (2, 1) if state.special else (0, 0)
-        start = sum(s0 + n + s1 for n in counts[:c]) + s0
-        if start + counts[c] > n_keys:
-            raise RuntimeError(
-                f"image tokens {start}..{start + counts[c]} exceed the {n_keys} attention keys"
-            )
-        return torch.arange(start, start + counts[c], device=device)
-
     def _record(self, state: _State, mask: Tensor, head_dim: int, q: Tensor, k: Tensor) -> None:
         # q (B, Lq, H, D), k (B, S, Hkv, D), mask (B, Lq, S) bool (True = attend)
         rows = slice(q.shape[1] - state.suffix_len, q.shape[1])
@@ -182,7 +193,10 @@ class SmolVLACapture:
         kh = k.transpose(1, 2)
         m = mask[:, rows][:, None]
         if state.probe is None:
-            state.keys = self._keys(state, k.shape[1], k.device)
+            around = (2, 1) if state.special else (0, 0)
+            state.keys = self._image_keys(
+                state.image_tokens, state.camera_index, k.shape[1], k.device, around
+            )
             state.probe = AttentionProbe(
                 None, ProbeSpec(queries=slice(None), keys=state.keys, layers=state.layers)
             )

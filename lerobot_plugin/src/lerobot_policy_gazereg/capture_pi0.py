@@ -22,11 +22,12 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-import torch
 from torch import Tensor, nn
 from transformers.models.gemma import modeling_gemma
 
 from gazereg.attention.probe import AttentionProbe, ProbeSpec
+
+from .capture import CaptureResults
 
 
 @dataclass
@@ -40,7 +41,7 @@ class _State:
     keys: Tensor | None = None
 
 
-class PiCapture:
+class PiCapture(CaptureResults):
     """Capture of a `PI0Pytorch` / `PI05Pytorch` model's action-token attention to one camera's image tokens.
 
     model: the policy's core model (`policy.model`).
@@ -60,23 +61,6 @@ class PiCapture:
                 f"gaze layers {list(self.layers)} invalid: the model has layers 0..{self.depth - 1}"
             )
         self.state: _State | None = None
-
-    # ----- results ----------------------------------------------------------------------------------------
-    @property
-    def image_tokens(self) -> list[int]:
-        """Image tokens of each camera in the last captured forward."""
-        return [] if self.state is None else list(self.state.image_tokens)
-
-    def attention(self, eps: float = 1e-12) -> Tensor:
-        """(B, n_image_tokens) attention of the action tokens to the camera's image tokens, averaged over heads,
-        action tokens and layers and renormalised over the camera's tokens (row-major over its patch grid)."""
-        if self.state is None or self.state.probe is None:
-            raise RuntimeError("no attention captured: run the policy's forward inside capture() first")
-        return self.state.probe.distribution(eps)
-
-    def patch_mass(self) -> Tensor:
-        """(B,) attention mass the action tokens put on the camera's image tokens, before renormalisation."""
-        return self.state.probe.patch_mass()
 
     # ----- capture ------------------------------------------------------------------------------------------
     @contextlib.contextmanager
@@ -116,24 +100,12 @@ class PiCapture:
                 "this lerobot version's pi0 forward differs from the one the capture was written for"
             )
 
-    def _keys(self, state: _State, n_keys: int, device: torch.device) -> Tensor:
-        counts = state.image_tokens
-        c = state.camera_index
-        if c >= len(counts):
-            raise RuntimeError(f"camera {c} was not embedded: the prefix holds {len(counts)} image(s)")
-        start = sum(counts[:c])
-        if start + counts[c] > n_keys:
-            raise RuntimeError(
-                f"image tokens {start}..{start + counts[c]} exceed the {n_keys} attention keys"
-            )
-        return torch.arange(start, start + counts[c], device=device)
-
     def _record(
         self, state: _State, layer: int, q: Tensor, k: Tensor, mask: Tensor | None, scaling: float
     ) -> None:
         # q (B, H, L, D) after rotary, k (B, Hkv, S, D), mask (B, 1, L, S) additive float
         if state.probe is None:
-            state.keys = self._keys(state, k.shape[2], k.device)
+            state.keys = self._image_keys(state.image_tokens, state.camera_index, k.shape[2], k.device)
             rows = slice(q.shape[2] - state.n_queries, q.shape[2])
             state.probe = AttentionProbe(None, ProbeSpec(queries=rows, keys=state.keys, layers=state.layers))
         state.probe.record(layer, q, k, mask, scaling)

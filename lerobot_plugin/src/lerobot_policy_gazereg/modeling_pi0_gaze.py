@@ -2,7 +2,8 @@
 training, weight * KL(gaze || attention of the action expert's action tokens to one camera's image tokens).
 
 The loss dict gains `loss/action` (pi0's own loss), `loss/gaze_kl` (the unweighted divergence), `gaze/weight`,
-`gaze/valid_frac` and `gaze/patch_mass`; lerobot-train logs every scalar of it. The gaze column comes from the
+`gaze/valid_frac` and `gaze/patch_mass`; lerobot-train logs every scalar of it. `gaze_target_mass=m` selects
+the mass variant of the term, as for `smolvla_gaze`. The gaze column comes from the
 batch or, when the pre-processor dropped it, from the data set's parquet files (as for `smolvla_gaze`).
 
 Image geometry (lerobot 0.6.1 `_preprocess_images`): a frame that is not `image_resolution` goes through
@@ -18,11 +19,11 @@ from typing import Any
 from lerobot.policies.pi0.modeling_pi0 import PI0Policy
 from torch import Tensor
 
-from gazereg.losses import gaze_kl, gaze_loss
 from gazereg.patches import PatchGeometry
 
 from .capture_pi0 import PiCapture
 from .configuration_pi0_gaze import PI0GazeConfig
+from .gaze_common import add_gaze_term, check_token_count, gaze_camera_index
 from .gaze_targets import gaze_distribution, gaze_valid_flag
 from .modeling_smolvla_gaze import SmolVLAGazePolicy
 
@@ -67,56 +68,14 @@ class PiGazeMixin:
         cfg = self.config
         if not self.training or cfg.gaze_weight == 0:
             return super().forward(batch, reduction=reduction)
-        cam = cfg.gaze_camera_key()
-        present = [k for k in cfg.image_features if k in batch]
-        if cam not in present:
-            raise KeyError(f"gaze camera {cam!r} is missing from the batch (images present: {present})")
+        cam, cam_index = gaze_camera_index(cfg, batch)
         column, flag = self._gaze_column(batch), gaze_valid_flag(batch, cfg.gaze_key)
-        with self.gaze_capture.capture(present.index(cam), cfg.chunk_size):
+        with self.gaze_capture.capture(cam_index, cfg.chunk_size):
             loss, loss_dict = super().forward(batch, reduction=reduction)
-        return self._add_gaze_term(loss, loss_dict, column, flag, cam, reduction)
-
-    def _add_gaze_term(
-        self,
-        loss: Tensor,
-        loss_dict: dict[str, Any],
-        column: Tensor,
-        flag: Tensor | None,
-        cam: str,
-        reduction: str,
-    ) -> tuple[Tensor, dict[str, Any]]:
-        """loss () or (B,) + weight * divergence(gaze (B, n_tokens) || attention (B, n_tokens)); `flag` (B,)
-        bool: the gaze column's validity flag column, if the data set has one."""
-        cfg = self.config
         geom, src_hw = self._geometry()
-        n_tokens = self.gaze_capture.image_tokens[self.gaze_capture.state.camera_index]
-        if n_tokens != geom.n_patches:
-            raise ValueError(
-                f"camera {cam!r} produced {n_tokens} image tokens but its geometry {geom.grid_hw} "
-                f"(input {geom.input_hw}, patch {geom.patch_size} px) has {geom.n_patches}: the camera/grid "
-                "mapping does not match the model"
-            )
-        attention = self.gaze_capture.attention()
+        check_token_count(cam, self.gaze_capture.image_tokens[cam_index], geom)
         gaze, valid = gaze_distribution(column, geom, False, cfg.gaze_sigma, src_hw, valid=flag)
-        gaze, valid = gaze.to(attention.device), valid.to(attention.device)
-        w = float(cfg.gaze_weight)
-        if reduction == "none":
-            per_sample = gaze_kl(gaze, attention, kind=cfg.gaze_divergence) * valid
-            kl = per_sample.sum() / valid.sum().clamp_min(1)
-            total = loss + w * per_sample
-        else:
-            kl, _ = gaze_loss(gaze, attention, valid, kind=cfg.gaze_divergence)
-            total = loss + w * kl
-        loss_dict.update(
-            {
-                "loss/action": float(loss.detach().mean()),
-                "loss/gaze_kl": float(kl.detach()),
-                "gaze/weight": w,
-                "gaze/valid_frac": float(valid.float().mean()),
-                "gaze/patch_mass": float(self.gaze_capture.patch_mass().mean()),
-            }
-        )
-        return total, loss_dict
+        return add_gaze_term(cfg, self.gaze_capture, loss, loss_dict, gaze, valid, reduction)
 
 
 class PI0GazePolicy(PiGazeMixin, PI0Policy):

@@ -25,11 +25,9 @@ import torch
 from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
 from torch import Tensor
 
-from gazereg.integrations.gaze_mass import check_target_mass, gaze_mass_kl, gaze_mass_loss
-from gazereg.losses import gaze_kl, gaze_loss
-
 from .capture import SmolVLACapture
 from .configuration_smolvla_gaze import SmolVLAGazeConfig
+from .gaze_common import add_gaze_term, check_token_count, gaze_camera_index
 from .gaze_targets import gaze_distribution, gaze_valid_flag, smolvla_geometry
 
 log = logging.getLogger(__name__)
@@ -108,53 +106,13 @@ class SmolVLAGazePolicy(SmolVLAPolicy):
         cfg = self.config
         if not self.training or cfg.gaze_weight == 0:
             return super().forward(batch, noise=noise, time=time, reduction=reduction)
-        cam = cfg.gaze_camera_key()
-        present = [k for k in cfg.image_features if k in batch]
-        if cam not in present:
-            raise KeyError(f"gaze camera {cam!r} is missing from the batch (images present: {present})")
+        cam, cam_index = gaze_camera_index(cfg, batch)
         column = self._gaze_column(batch)
-        with self.gaze_capture.capture(present.index(cam)):
+        with self.gaze_capture.capture(cam_index):
             loss, loss_dict = super().forward(batch, noise=noise, time=time, reduction=reduction)
         geom, flip, src_hw = self._geometry()
-        n_tokens = self.gaze_capture.image_tokens[present.index(cam)]
-        if n_tokens != geom.n_patches:
-            raise ValueError(
-                f"camera {cam!r} produced {n_tokens} image tokens but its geometry {geom.grid_hw} "
-                f"(input {geom.input_hw}, patch {geom.patch_size} px, pixel shuffle {geom.pixel_shuffle}) has "
-                f"{geom.n_patches}: the camera/grid mapping does not match the model"
-            )
+        check_token_count(cam, self.gaze_capture.image_tokens[cam_index], geom)
         gaze, valid = gaze_distribution(
             column, geom, flip, cfg.gaze_sigma, src_hw, valid=gaze_valid_flag(batch, cfg.gaze_key)
         )
-        kl, per_sample = self._gaze_term(gaze, valid, reduction == "none")
-        w = float(cfg.gaze_weight)
-        total = loss + w * (per_sample if reduction == "none" else kl)
-        loss_dict.update(
-            {
-                "loss/action": float(loss.detach().mean()),
-                "loss/gaze_kl": float(kl.detach()),
-                "gaze/weight": w,
-                "gaze/valid_frac": float(valid.float().mean()),
-                "gaze/patch_mass": float(self.gaze_capture.patch_mass().mean()),
-            }
-        )
-        return total, loss_dict
-
-    def _gaze_term(self, gaze: Tensor, valid: Tensor, per_sample: bool) -> tuple[Tensor, Tensor | None]:
-        """(mean divergence over valid samples, (B,) masked per-sample divergence or None) for gaze (B, N)."""
-        kind = self.config.gaze_divergence
-        mass = self.config.gaze_target_mass
-        if mass is None:
-            attention = self.gaze_capture.attention()
-            gaze, valid = gaze.to(attention.device), valid.to(attention.device)
-            if per_sample:
-                rows = gaze_kl(gaze, attention, kind=kind) * valid
-                return rows.sum() / valid.sum().clamp_min(1), rows
-            return gaze_loss(gaze, attention, valid, kind=kind)[0], None
-        mass = check_target_mass(mass)
-        raw = self.gaze_capture.raw_attention()
-        gaze, valid = gaze.to(raw.device), valid.to(raw.device)
-        if per_sample:
-            rows = gaze_mass_kl(gaze, raw, mass, kind=kind) * valid
-            return rows.sum() / valid.sum().clamp_min(1), rows
-        return gaze_mass_loss(gaze, raw, mass, valid, kind=kind)[0], None
+        return add_gaze_term(cfg, self.gaze_capture, loss, loss_dict, gaze, valid, reduction)
