@@ -23,7 +23,7 @@ no gradient. (SmolVLA 0.6.1 itself has no gradient-checkpointing option.)
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -46,6 +46,18 @@ class _State:
     probe: AttentionProbe | None = None
     keys: Tensor | None = None
     grad: bool = False  # autograd was on (and the model training) when the capture started
+
+
+def counting_tokens(embed: Callable[[Tensor], Tensor], counts: list[int]) -> Callable[[Tensor], Tensor]:
+    """`embed` (images -> (B, n_tokens, D) image tokens) wrapped to append each call's n_tokens to `counts`:
+    the captures learn where each camera's tokens sit in the sequence from these counts."""
+
+    def embed_image(image: Tensor) -> Tensor:
+        out = embed(image)
+        counts.append(int(out.shape[1]))
+        return out
+
+    return embed_image
 
 
 class CaptureResults:
@@ -137,10 +149,7 @@ class SmolVLACapture(CaptureResults):
         orig_cross_layer = vwe.forward_cross_attn_layer
         orig_eager = vwe.eager_attention_forward
 
-        def embed_image(image: Tensor) -> Tensor:
-            out = orig_embed(image)
-            state.image_tokens.append(int(out.shape[1]))
-            return out
+        embed_image = counting_tokens(orig_embed, state.image_tokens)
 
         def layer_wrapper(orig: Any, cross: bool) -> Any:
             def run(model_layers, inputs_embeds, layer_idx, *args: Any, **kwargs: Any):

@@ -27,7 +27,7 @@ from transformers.models.gemma import modeling_gemma
 
 from gazereg.attention.probe import AttentionProbe, ProbeSpec
 
-from .capture import CaptureResults
+from .capture import CaptureResults, counting_tokens
 
 
 @dataclass
@@ -74,10 +74,7 @@ class PiCapture(CaptureResults):
         orig_embed = pwe.embed_image
         orig_eager = modeling_gemma.eager_attention_forward
 
-        def embed_image(image: Tensor) -> Tensor:
-            out = orig_embed(image)
-            state.image_tokens.append(int(out.shape[1]))
-            return out
+        embed_image = counting_tokens(orig_embed, state.image_tokens)
 
         def eager(module, query, key, value, attention_mask, scaling, *args: Any, **kwargs: Any):
             out = orig_eager(module, query, key, value, attention_mask, scaling, *args, **kwargs)

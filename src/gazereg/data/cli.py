@@ -18,9 +18,7 @@ atomically.
 
 from __future__ import annotations
 
-import logging
-
-from gazereg.runtime.subcommands import Entry, Subcommands, run_entry
+from gazereg.runtime.subcommands import Subcommands, run_entry_logged
 
 COMMANDS = Subcommands(
     prog="gazereg import",
@@ -48,16 +46,11 @@ COMMANDS = Subcommands(
 )
 
 
-def _run(name: str, entry: Entry, argv: list[str]) -> int:
-    """Run a subcommand with INFO logging. Errors propagate to the `gazereg` command, which prints one line
-    and exits with status 1 for a bad source file (`DataImportError`, `DataExportError`) and 2 for a usage
-    mistake (`ImportUsageError`, `ExportUsageError`, a missing path)."""
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    return run_entry(name, entry, argv)
-
-
 def main(argv: list[str] | None = None) -> int:
-    return COMMANDS.main(argv, run=_run)
+    """Dispatch with INFO logging. Errors propagate to the `gazereg` command, which prints one line and exits
+    with status 1 for a bad source file (`DataImportError`, `DataExportError`) and 2 for a usage mistake
+    (`ImportUsageError`, `ExportUsageError`, a missing path)."""
+    return COMMANDS.main(argv, run=run_entry_logged)
 
 
 if __name__ == "__main__":

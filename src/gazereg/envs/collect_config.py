@@ -15,7 +15,7 @@ from typing import Literal
 
 from gazereg.envs.base import UnknownSimulator, make_collector, simulator
 from gazereg.envs.perturbations import parse_perturbation
-from gazereg.runtime.config import Validated, option, require_number
+from gazereg.runtime.config import Validated, option, require_entries, require_number
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.pool import fingerprint_json
 
@@ -76,14 +76,8 @@ class CollectConfig(Validated):
         except UnknownSimulator as e:
             raise CollectError(f"{option(prefix + 'env')}: {e}") from None
         for name in ("tasks", "cameras"):
-            values = tuple(getattr(self, name))
-            twice = sorted({v for v in values if values.count(v) > 1})
-            if twice:
-                raise CollectError(
-                    f"{option(prefix + name)} lists {', '.join(map(repr, twice))} more than once"
-                )
-        if not self.tasks:
-            raise CollectError(f"{option(prefix + 'tasks')} is empty: give at least one task")
+            require_entries(getattr(self, name), prefix + name, non_empty=False, error=CollectError)
+        require_entries(self.tasks, prefix + "tasks", noun="task", error=CollectError)
         require_number(self.episodes, prefix + "episodes", 1, INDEX_STRIDE, integer=True)
         require_number(
             self.max_failures, prefix + "max_failures", 0, INDEX_STRIDE - self.episodes, integer=True

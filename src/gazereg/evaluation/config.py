@@ -15,7 +15,7 @@ from typing import Literal
 
 from gazereg.envs.base import UnknownSimulator, simulator
 from gazereg.envs.perturbations import parse_perturbation
-from gazereg.runtime.config import Validated, option, require_number
+from gazereg.runtime.config import Validated, option, require_entries, require_number
 from gazereg.runtime.errors import UsageError
 
 # The full robustness sweep: each lighting perturbation and several sensor-noise levels.
@@ -68,14 +68,7 @@ class EvalConfig(Validated):
         ):
             require_number(getattr(self, name), prefix + name, low, integer=True)
         for name in ("tasks", "conditions"):
-            values = tuple(getattr(self, name))
-            if not values:
-                raise UsageError(f"{option(prefix + name)} is empty: give at least one")
-            twice = sorted({v for v in values if values.count(v) > 1})
-            if twice:
-                raise UsageError(
-                    f"{option(prefix + name)} lists {', '.join(map(repr, twice))} more than once"
-                )
+            require_entries(getattr(self, name), prefix + name)
         for condition in self.conditions:
             try:
                 parse_perturbation(condition)

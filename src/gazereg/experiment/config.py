@@ -20,7 +20,7 @@ from gazereg.gaze.sources.perturbed import PerturbedParams
 from gazereg.gaze.sources.simple import SaliencyParams, UniformParams
 from gazereg.gaze.sources.visuomotor import VisuomotorParams
 from gazereg.report.build import ReportSpec
-from gazereg.runtime.config import Validated, option, require_number, to_dict
+from gazereg.runtime.config import Validated, option, require_entries, require_number, to_dict
 from gazereg.runtime.errors import UsageError
 from gazereg.training.config import DataConfig, GazeConfig, OptimConfig, TrainConfig
 from gazereg.training.config import quick as quick_train
@@ -69,12 +69,7 @@ class ExperimentConfig(Validated):
     def validate(self, prefix: str) -> None:
         """UsageError naming the first bad option (the nested train and eval configs check their own)."""
         for name in ("tasks", "arms", "train_seeds"):
-            values = tuple(getattr(self, name))
-            if not values:
-                raise UsageError(f"{option(prefix + name)} is empty: give at least one")
-            twice = sorted({str(v) for v in values if values.count(v) > 1})
-            if twice:
-                raise UsageError(f"{option(prefix + name)} lists {', '.join(twice)} more than once")
+            require_entries(getattr(self, name), prefix + name, show=str)
         unknown = [a for a in self.arms if a not in ARMS]
         if unknown:
             raise UsageError(

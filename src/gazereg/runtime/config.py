@@ -198,6 +198,25 @@ def require_number(
         )
 
 
+def require_entries(
+    values: Iterable[Any],
+    path: str,
+    *,
+    non_empty: bool = True,
+    noun: str = "",
+    show: Callable[[Any], str] = repr,
+    error: type[UsageError] = UsageError,
+) -> None:
+    """Raise `error` naming `option(path)` when a list option is empty (with `non_empty`; "give at least one
+    NOUN") or lists an entry more than once (entries written with `show`)."""
+    values = tuple(values)
+    if non_empty and not values:
+        raise error(f"{option(path)} is empty: give at least one{' ' + noun if noun else ''}")
+    twice = sorted({show(v) for v in values if values.count(v) > 1})
+    if twice:
+        raise error(f"{option(path)} lists {', '.join(twice)} more than once")
+
+
 def require_choice(value: Any, path: str, choices: Iterable[Any]) -> None:
     """Raise `UsageError` naming `option(path)` unless `value` is one of `choices`."""
     allowed = list(choices)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import logging
 import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -36,6 +37,13 @@ def load_entry(target: str) -> Entry:
 def run_entry(name: str, entry: Entry, argv: list[str]) -> int:
     """The default runner: call the entry point, None counts as success."""
     return int(entry(argv) or 0)
+
+
+def run_entry_logged(name: str, entry: Entry, argv: list[str]) -> int:
+    """`run_entry` with INFO logging to stderr (`LEVEL logger: message`), for commands that report progress
+    through `logging`."""
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    return run_entry(name, entry, argv)
 
 
 @dataclass(frozen=True)

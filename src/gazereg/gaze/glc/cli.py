@@ -15,7 +15,6 @@ the training episodes' gaze and the uniform map; it prints a table and writes JS
 from __future__ import annotations
 
 import json
-import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,7 +34,7 @@ from gazereg.gaze.sources.glc import CONFIGS, GLCConfigName, GLCMode, GLCParams
 from gazereg.runtime.config import Validated, option, parse, require_choice, require_number
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_json
-from gazereg.runtime.subcommands import Entry, Subcommands, run_entry
+from gazereg.runtime.subcommands import Subcommands, run_entry_logged
 
 
 @dataclass(frozen=True)
@@ -161,13 +160,8 @@ COMMANDS = Subcommands(
 )
 
 
-def _run(name: str, entry: Entry, argv: list[str]) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    return run_entry(name, entry, argv)
-
-
 def main(argv: list[str] | None = None) -> int:
-    return COMMANDS.main(argv, run=_run)
+    return COMMANDS.main(argv, run=run_entry_logged)
 
 
 if __name__ == "__main__":
