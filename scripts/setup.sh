@@ -9,6 +9,9 @@ EXTRAS="${EXTRAS:-sim,viz,data,hf,dev}"
 PYTHON="${PYTHON:-python3}"
 # A CPU torch lies on disk on this machine kind; elsewhere set TORCH_SPEC to what suits the machine.
 TORCH_SPEC="${TORCH_SPEC:-torch==2.13.0}"
+# The tested versions of every other package (a new upstream release must not turn CI red by itself);
+# GAZEREG_CONSTRAINTS=none takes the newest versions pyproject.toml allows.
+CONSTRAINTS="${GAZEREG_CONSTRAINTS:-constraints.txt}"
 
 log() { printf '[setup] %s\n' "$*"; }
 
@@ -38,7 +41,7 @@ if [[ ! -x "$VENV/bin/python" ]]; then
 fi
 
 stamp="$VENV/.gazereg-installed"
-want="$(cat pyproject.toml scripts/setup.sh | sha256sum | cut -c1-16) $EXTRAS $TORCH_SPEC"
+want="$(cat pyproject.toml scripts/setup.sh constraints.txt | sha256sum | cut -c1-16) $EXTRAS $TORCH_SPEC $CONSTRAINTS"
 if [[ -f "$stamp" && "$(cat "$stamp")" == "$want" ]]; then
   exit 0
 fi
@@ -48,6 +51,8 @@ if ! "$VENV/bin/python" -c "import torch" >/dev/null 2>&1; then
   "$VENV/bin/python" -m pip install -q "$TORCH_SPEC"
 fi
 log "installing gazereg[$EXTRAS]"
-"$VENV/bin/python" -m pip install -q -e ".[$EXTRAS]"
+pin=()
+[[ "$CONSTRAINTS" != none ]] && pin=(-c "$CONSTRAINTS")
+"$VENV/bin/python" -m pip install -q "${pin[@]}" -e ".[$EXTRAS]"
 echo "$want" > "$stamp"
 log "done: $("$VENV/bin/python" -c 'import torch, gazereg; print("torch", torch.__version__, "gazereg", gazereg.__version__)')"

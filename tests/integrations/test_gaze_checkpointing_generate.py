@@ -64,9 +64,8 @@ def test_reentrant_checkpointing_is_an_error_at_the_first_forward(fam):
 def test_pi0_checkpointing_fails_in_transformers_itself_or_keeps_the_gradient():
     model = tiny_model("pi0").train()
     model.gradient_checkpointing_enable()
-    try:
-        with torch.no_grad():
-            model(**tiny_batch(model))
+    try:  # with gradients on, as in training: some versions drop the cache only then
+        model(**tiny_batch(model))
     except AttributeError as e:  # transformers' PI0 forward drops its prefix cache under checkpointing
         pytest.skip(f"transformers' PI0 cannot train with gradient checkpointing at all: {e}")
     ref = _term_grads("pi0", None)
