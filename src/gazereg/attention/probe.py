@@ -74,7 +74,8 @@ def attention_rows(
         k = k.repeat_interleave(H // k.shape[1], dim=1)
     qi = _positions(queries, Tq, q.device)
     scale = 1.0 / math.sqrt(d) if scale is None else scale
-    logits = torch.matmul(q[:, :, qi].float(), k.float().transpose(-1, -2)) * scale
+    with torch.autocast(q.device.type, enabled=False):  # float32 even inside a bf16/fp16 autocast region
+        logits = torch.matmul(q[:, :, qi].float(), k.float().transpose(-1, -2)) * scale
     if mask is not None:
         m = mask[..., qi, :] if mask.shape[-2] == Tq else mask  # a (.., 1, Tk) mask broadcasts over rows
         logits = logits.masked_fill(~m, float("-inf")) if m.dtype == torch.bool else logits + m.float()

@@ -53,7 +53,7 @@ resume is bit for bit the uninterrupted run only on the same device and thread c
 
 WeightKind = Literal["constant", "linear_warmup", "cosine"]
 Device = Literal["auto", "cpu", "cuda"]
-Precision = Literal["no", "bf16", "fp16"]
+Precision = Literal["auto", "no", "bf16", "fp16"]
 LoggerKind = Literal["none", "tensorboard", "wandb"]
 
 
@@ -170,7 +170,10 @@ class TrainConfig(Validated):
     stop_at: int | None = None
     """stop (with a checkpoint) after this many steps without changing the schedule; resume later"""
     device: Device = "auto"
-    mixed_precision: Precision = "no"
+    mixed_precision: Precision = "auto"
+    """autocast dtype of the forward: auto = bf16 where the device multiplies bf16 natively (a CUDA GPU with
+    bf16, an AVX-512 BF16 / AMX CPU), else no (float32); the run folder's config.json records the choice.
+    The gaze KL, the losses and normalisation stay float32 either way."""
     threads: int | None = None
     """torch intra-op threads per process (default: torch's choice)"""
     progress: bool = True

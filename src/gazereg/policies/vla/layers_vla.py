@@ -30,41 +30,51 @@ class ConvStem(nn.Module):
         )
 
     def forward(self, x: Tensor) -> Tensor:
-        return self.net(x).flatten(2).transpose(1, 2)
+        return self.net(x).permute(0, 2, 3, 1).flatten(1, 2)  # a view for channels-last maps
+
+
+def attention_bias(mask: Tensor) -> Tensor:
+    """Bool mask (B, 1, T, T) (True = may attend) -> the additive float32 bias: 0 where allowed, -inf elsewhere."""
+    return torch.zeros(mask.shape, dtype=torch.float32, device=mask.device).masked_fill_(~mask, float("-inf"))
 
 
 class Attention(nn.Module):
-    def __init__(self, dim: int, heads: int, layer: int, dropout: float):
+    """Multi-head self-attention. `impl` "math": softmax(q k^T / sqrt(d) + bias) V written out, in the compute
+    dtype (bf16 under autocast; the softmax accumulates in float32); "sdpa": `F.scaled_dot_product_attention` (fused kernels for long sequences and
+    GPUs). Both compute the same function; which is faster depends on the machine (benchmarks/bench_train.py)."""
+
+    def __init__(self, dim: int, heads: int, layer: int, dropout: float, impl: str = "math"):
         super().__init__()
-        self.heads, self.layer, self.dropout = heads, layer, dropout
+        self.heads, self.layer, self.dropout, self.impl = heads, layer, dropout, impl
         self.qkv = nn.Linear(dim, 3 * dim)
         self.proj = nn.Linear(dim, dim)
 
     def forward(
-        self, x: Tensor, mask: Tensor, output_attentions: bool = False
+        self, x: Tensor, mask: Tensor, output_attentions: bool = False, bias: Tensor | None = None
     ) -> tuple[Tensor, Tensor | None]:
-        """x (B, T, D), mask (B, 1, T, T) bool (True = may attend) -> (B, T, D) [, probs (B, H, T, T)]."""
+        """x (B, T, D), mask (B, 1, T, T) bool (True = may attend), optionally its `attention_bias` (computed
+        once for all layers) -> (B, T, D) [, probs (B, H, T, T) float32 if output_attentions]."""
         B, T, D = x.shape
         q, k, v = (
             self.qkv(x).reshape(B, T, 3, self.heads, D // self.heads).permute(2, 0, 3, 1, 4)
         )  # (B, H, T, d)
         tap(self.layer, q, k, mask)  # free unless an AttentionProbe is active
-        probs = None
         p = self.dropout if self.training else 0.0
-        if output_attentions:  # eager path, materialises every probability (for inspection and benchmarks)
-            logits = (q @ k.transpose(-1, -2)) / math.sqrt(D // self.heads)
-            probs = torch.softmax(logits.masked_fill(~mask, float("-inf")), dim=-1)
-            y = F.dropout(probs, p) @ v
-        else:
+        if self.impl == "sdpa" and not output_attentions:
             y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask, dropout_p=p)
-        return self.proj(y.transpose(1, 2).reshape(B, T, D)), probs
+            return self.proj(y.transpose(1, 2).reshape(B, T, D)), None
+        bias = attention_bias(mask) if bias is None else bias
+        logits = (q * (1.0 / math.sqrt(D // self.heads))) @ k.transpose(-1, -2) + bias.to(q.dtype)
+        probs = torch.softmax(logits, dim=-1)  # accumulates in float32 whatever the dtype
+        y = (F.dropout(probs, p) if p > 0 else probs) @ v
+        return self.proj(y.transpose(1, 2).reshape(B, T, D)), probs.float() if output_attentions else None
 
 
 class Block(nn.Module):
     def __init__(self, cfg: VLAConfig, layer: int):
         super().__init__()
         self.norm1 = nn.LayerNorm(cfg.dim)
-        self.attn = Attention(cfg.dim, cfg.heads, layer, cfg.dropout)
+        self.attn = Attention(cfg.dim, cfg.heads, layer, cfg.dropout, cfg.attention)
         self.norm2 = nn.LayerNorm(cfg.dim)
         hidden = int(cfg.dim * cfg.mlp_ratio)
         self.mlp = nn.Sequential(
@@ -72,9 +82,9 @@ class Block(nn.Module):
         )
 
     def forward(
-        self, x: Tensor, mask: Tensor, output_attentions: bool = False
+        self, x: Tensor, mask: Tensor, output_attentions: bool = False, bias: Tensor | None = None
     ) -> tuple[Tensor, Tensor | None]:
-        y, probs = self.attn(self.norm1(x), mask, output_attentions)
+        y, probs = self.attn(self.norm1(x), mask, output_attentions, bias)
         x = x + y
         return x + self.mlp(self.norm2(x)), probs
 

@@ -20,7 +20,7 @@ Token sequence, one transformer over all of it (T = P + K tokens):
 - Decoder: LayerNorm + Linear to the action dimension: normalised actions (L1 head, loss L1) or a velocity
   field (flow head, loss MSE to noise - action; Euler integration from t=1 to 0 at inference).
 
-Attention (layers_vla.Attention) uses `F.scaled_dot_product_attention` and calls `gazereg.attention.tap(layer, q, k, mask)`: the
+Attention (layers_vla.Attention, explicit softmax or `F.scaled_dot_product_attention`: `VLAConfig.attention`) calls `gazereg.attention.tap(layer, q, k, mask)`: the
 gaze regularizer reads the action queries' attention to one camera's patches through an `AttentionProbe`
 (`gaze_probe_spec`) without changing the forward. Inference (`select_action`) never sees gaze.
 
@@ -46,7 +46,7 @@ from gazereg.data.dataset import StoreInfo
 from gazereg.patches import PatchGeometry
 from gazereg.policies.base import Policy
 from gazereg.policies.vla.configuration_vla import VLAConfig
-from gazereg.policies.vla.layers_vla import Block, ConvStem, flow_time_embedding
+from gazereg.policies.vla.layers_vla import Block, ConvStem, attention_bias, flow_time_embedding
 from gazereg.policies.vla.processor_vla import Normalizer, Tokenizer, random_shift, to_input_images
 
 log = logging.getLogger(__name__)
@@ -187,7 +187,9 @@ class VLAPolicy(Policy):
             if generator is None:
                 raise ValueError("random shift augmentation needs an explicit torch.Generator")
             x = random_shift(x, shift, generator)
-        tok = self.stem(x)  # (n_cams * B, N, D)
+        tok = self.stem(
+            x.contiguous(memory_format=torch.channels_last)
+        )  # (n_cams * B, N, D); NHWC convs are faster
         B = tok.shape[0] // len(c.cameras)
         tok = tok.reshape(len(c.cameras), B, c.n_patches, c.dim) + self.image_pos[:, None]
         return tok.transpose(0, 1).reshape(B, -1, c.dim)
@@ -212,9 +214,10 @@ class VLAPolicy(Policy):
     ) -> tuple[Tensor, list[Tensor]]:
         """Returns the decoded action-query outputs (B, K, A) and, if asked, every layer's (B, H, T, T) probs."""
         x = torch.cat([prefix, actions], 1)
+        bias = attention_bias(mask)
         attentions = []
         for blk in self.blocks:
-            x, probs = blk(x, mask, output_attentions)
+            x, probs = blk(x, mask, output_attentions, bias)
             if probs is not None:
                 attentions.append(probs)
         return self.action_out(self.norm(x[:, self.n_prefix :])), attentions

@@ -133,14 +133,8 @@ def random_shift(images: Tensor, pad: int, generator: torch.Generator) -> Tensor
         return images
     B, _, H, W = images.shape
     padded = F.pad(images, (pad, pad, pad, pad), mode="replicate")
-    off = torch.randint(0, 2 * pad + 1, (B, 2), generator=generator, device=generator.device).to(
-        images.device
-    )
-    rows = off[:, 0, None] + torch.arange(H, device=images.device)[None]  # (B, H)
-    cols = off[:, 1, None] + torch.arange(W, device=images.device)[None]  # (B, W)
-    b = torch.arange(B, device=images.device)[:, None, None]
-    out = padded.permute(0, 2, 3, 1)[b, rows[:, :, None], cols[:, None, :]]  # (B, H, W, C)
-    return out.permute(0, 3, 1, 2).contiguous()
+    off = torch.randint(0, 2 * pad + 1, (B, 2), generator=generator, device=generator.device).tolist()
+    return torch.stack([padded[i, :, r : r + H, c : c + W] for i, (r, c) in enumerate(off)])
 
 
 class Normalizer(nn.Module):
