@@ -1,3 +1,5 @@
+import math
+
 import numpy as np
 import pytest
 
@@ -91,3 +93,29 @@ def test_paired_rate_difference_covers_the_true_difference_about_95_percent_of_t
         lo, hi = paired_rate_difference(*pairs(*counts.tolist()))["ci95"]
         hits += lo <= 0.10 <= hi
     assert 0.93 <= hits / len(cells) <= 0.975
+
+
+def test_mcnemar_power_equals_enumerating_every_outcome():
+    import itertools
+
+    from gazereg.evaluation.stats import binom_two_sided, mcnemar_power
+
+    pa, pb, n = 0.3, 0.05, 7
+    probs = {"a": pa, "b": pb, "c": 1 - pa - pb}
+    want = 0.0
+    for outcome in itertools.product("abc", repeat=n):
+        k, d = outcome.count("a"), outcome.count("a") + outcome.count("b")
+        if binom_two_sided(k, d) < 0.05:
+            want += math.prod(probs[o] for o in outcome)
+    assert mcnemar_power(pa, pb, n) == pytest.approx(want, abs=1e-12)
+    assert want > 0
+
+
+def test_pairs_for_power_is_the_smallest_size_reaching_it():
+    from gazereg.evaluation.stats import mcnemar_power, pairs_for_power
+
+    n = pairs_for_power(85 / 300, 8 / 300, power=0.8)
+    assert mcnemar_power(85 / 300, 8 / 300, n) >= 0.8 > mcnemar_power(85 / 300, 8 / 300, n - 1)
+    assert mcnemar_power(0.1, 0.1, 200) < 0.1  # no effect: power stays near alpha
+    with pytest.raises(ValueError):
+        mcnemar_power(0.0, 0.0, 10)

@@ -54,6 +54,36 @@ def mcnemar_exact(a: Sequence[bool], b: Sequence[bool]) -> dict[str, float]:
     return {"a_only": a_only, "b_only": b_only, "p_value": binom_two_sided(a_only, a_only + b_only)}
 
 
+def mcnemar_power(a_only_rate: float, b_only_rate: float, pairs: int, alpha: float = 0.05) -> float:
+    """Probability that `mcnemar_exact` on `pairs` pairs reaches p < alpha when each pair is, independently,
+    solved only by a with probability `a_only_rate` and only by b with `b_only_rate` (the discordant-pair
+    rates a previous comparison measured). Exact: sums over the number of discordant pairs and their split."""
+    discordant = a_only_rate + b_only_rate
+    if not (a_only_rate >= 0 and b_only_rate >= 0 and 0 < discordant <= 1) or pairs < 0:
+        raise ValueError(
+            f"need rates >= 0 with 0 < sum <= 1 and pairs >= 0, got {a_only_rate}, {b_only_rate}, {pairs}"
+        )
+    share = a_only_rate / discordant
+    power = 0.0
+    for d in range(pairs + 1):
+        weight = math.comb(pairs, d) * discordant**d * (1 - discordant) ** (pairs - d)
+        if weight < 1e-15:
+            continue
+        significant = (k for k in range(d + 1) if binom_two_sided(k, d) < alpha)
+        power += weight * sum(math.comb(d, k) * share**k * (1 - share) ** (d - k) for k in significant)
+    return power
+
+
+def pairs_for_power(
+    a_only_rate: float, b_only_rate: float, power: float = 0.8, alpha: float = 0.05, limit: int = 5000
+) -> int:
+    """The fewest pairs with `mcnemar_power` >= power (ValueError past `limit`)."""
+    for n in range(1, limit + 1):
+        if mcnemar_power(a_only_rate, b_only_rate, n, alpha) >= power:
+            return n
+    raise ValueError(f"more than {limit} pairs needed for power {power} at these rates")
+
+
 def paired_rate_difference(a: Sequence[bool], b: Sequence[bool], z: float = 1.959964) -> dict[str, Any]:
     """Difference of two success rates on the same seeds, rate(a) - rate(b), with Newcombe's (1998, method 10)
     95% interval for paired proportions: the two Wilson intervals combined with the pairs' phi correlation.
