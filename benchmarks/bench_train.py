@@ -1,23 +1,26 @@
-"""Training cost of the gaze regularizer on the tiny preset (CPU), printed as JSON.
+"""Training cost of the reference VLA policy (tiny preset, CPU) and of the gaze term, printed as JSON.
 
-    python benchmarks/bench_train.py [--batch 32] [--steps 15] [--rounds 3] [--threads 2]
+    python benchmarks/bench_train.py [--batch 32] [--steps 12] [--rounds 3] [--threads 1] [--no-rss] [--quick]
 
-Measures, on a synthetic 96 px store (no simulator needed):
-- step time (forward + backward + AdamW + clipping, batch 32) for the baseline, the gaze term through the
-  attention probe (last 2 layers), and a naive gaze term that materialises every layer's attention
-  probabilities (like `output_attentions=True`); modes are interleaved over several rounds and the median
-  per-step time is reported, so a noisy shared CPU affects all modes alike;
-- activation memory: bytes saved for backward in one step (saved-tensor hooks), and the peak RSS of a fresh
-  process running each mode;
-- inference latency of `select_action` (a chunk predicted every call) for a baseline and a gaze-trained
-  checkpoint (same architecture, so the ratio should be ~1.00);
-- data loading: samples/s of the training DataLoader (in memory and memory-mapped) against training samples/s.
+On a synthetic 96 px store (no simulator needed), in one run:
+- median step time (forward + backward + clipping + AdamW), modes interleaved over rounds so a noisy shared CPU
+  affects all alike, of three paths, each for the baseline and the gaze term through the attention probe:
+  `eager_fp32` (SDPA attention, per-tensor AdamW, float32: the path before the speed work), `default` (what
+  `gazereg train` does now: explicit-softmax attention, fused AdamW, autocast in the precision
+  `resolve_precision` picks here) and `math_fp32` (explicit softmax, fused AdamW, float32); the default path
+  also with a naive gaze term that materialises every layer's attention (`output_attentions=True`);
+- matmul FLOPs per step (3x the forward's Linear, Conv2d and attention matmuls), this machine's float32 and
+  bfloat16 matmul peaks on --threads threads, and the fraction of peak each path reaches;
+- a coarse torch.profiler breakdown of the default step (self CPU ms per step, grouped by op name);
+- activation memory (bytes saved for backward) and the peak RSS of a fresh process per gaze term;
+- float32 `select_action` latency of a baseline and a gaze-trained checkpoint; DataLoader samples/s.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import resource
 import statistics
@@ -25,6 +28,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -35,8 +39,28 @@ from gazereg.data.dataset import EpisodeDataset, StepBatchSampler, collate_batch
 from gazereg.data.store import Episode, EpisodeStore
 from gazereg.losses import gaze_loss
 from gazereg.policies.vla import Tokenizer, VLAConfig, VLAPolicy
+from gazereg.runtime.hardware import BF16_CPU_FLAGS, cpu_flags, native_bf16
+from gazereg.training.config import PRESETS
+from gazereg.training.schedule import param_groups
+from gazereg.training.setup import make_optimiser, resolve_precision
 
-MODES = ("baseline", "gaze_probe", "naive_all_layers")
+TERMS = ("baseline", "gaze", "naive_all_layers")
+TRAIN_CFG = resolve_precision(PRESETS["quick"]())  # the README's CPU job, mixed_precision "auto" resolved
+BF16 = TRAIN_CFG.mixed_precision == "bf16"
+PATHS = {
+    "eager_fp32": {"attention": "sdpa", "fused_adamw": False, "autocast_bf16": False},
+    "default": {"attention": "math", "fused_adamw": True, "autocast_bf16": BF16},
+    "math_fp32": {"attention": "math", "fused_adamw": True, "autocast_bf16": False},
+}
+STEP_MODES = [(p, t) for p in PATHS for t in TERMS if p == "default" or t != "naive_all_layers"]
+OPS = {  # profiler op (aten::<op>) -> category; also attention: *scaled_dot_product*; optimizer: see op_category
+    "linear_matmul": ("mm", "addmm"),
+    "attention": ("bmm", "_softmax", "softmax", "_softmax_backward_data"),
+    "conv_stem": ("conv2d", "convolution", "_convolution", "convolution_backward", "mkldnn_convolution"),
+    "casts_copies": ("copy_", "_to_copy", "to"),
+}
+OP_CATEGORY = {f"aten::{op}": cat for cat, ops in OPS.items() for op in ops}
+CATEGORIES = (*OPS, "optimizer", "other")
 
 
 def make_store(root: Path, episodes: int = 20, length: int = 50, size: int = 96) -> EpisodeStore:
@@ -51,64 +75,189 @@ def make_store(root: Path, episodes: int = 20, length: int = 50, size: int = 96)
         state = np.concatenate([uv, rng.normal(size=(length, 2))], 1).astype(np.float32)
         action = rng.normal(size=(length, 4)).astype(np.float32)
         store.write(Episode("reach", "reach the goal", {"corner2": frames}, state, action))
-        heat = np.exp(
-            -(((xs + 0.5) / 64 - uv[:, 0, None, None]) ** 2 + ((ys + 0.5) / 64 - uv[:, 1, None, None]) ** 2)
-            / 0.005
-        )
-        store.write_prior(
-            "bench", e, (heat / heat.sum((1, 2), keepdims=True)).astype(np.float32), np.ones(length, bool)
-        )
+        d2 = ((xs + 0.5) / 64 - uv[:, 0, None, None]) ** 2 + ((ys + 0.5) / 64 - uv[:, 1, None, None]) ** 2
+        heat = np.exp(-d2 / 0.005)
+        prior = (heat / heat.sum((1, 2), keepdims=True)).astype(np.float32)
+        store.write_prior("bench", e, prior, np.ones(length, bool))
     store.write_prior_info("bench", {"camera": "corner2"})
     return store
 
 
-def make_policy(seed: int = 0) -> VLAPolicy:
+def make_policy(seed: int = 0, attention: str = "math") -> VLAPolicy:
     torch.manual_seed(seed)
-    base = VLAConfig()
-    tok = Tokenizer.build(["reach the goal"], max_len=base.max_text_len)
-    cfg = VLAConfig(
-        cameras=("corner2",), camera_hw=((96, 96),), state_dim=4, action_dim=4, vocab_size=tok.vocab_size
-    )
-    return VLAPolicy(cfg, tok)
+    tok = Tokenizer.build(["reach the goal"], max_len=VLAConfig().max_text_len)
+    data = {"cameras": ("corner2",), "camera_hw": ((96, 96),), "state_dim": 4, "action_dim": 4}
+    return VLAPolicy(VLAConfig(**data, vocab_size=tok.vocab_size, attention=attention), tok)
 
 
 def make_dataset(store: EpisodeStore, policy: VLAPolicy, in_memory: bool = True) -> EpisodeDataset:
-    return EpisodeDataset(
-        store,
-        store.indices(),
-        ["corner2"],
-        policy.config.chunk,
-        policy.tokenizer,
-        gaze_prior="bench",
-        geometry=policy.geometry("corner2"),
-        in_memory=in_memory,
-    )
+    geometry = policy.geometry("corner2")
+    args = (store, store.indices(), ["corner2"], policy.config.chunk, policy.tokenizer)
+    return EpisodeDataset(*args, gaze_prior="bench", geometry=geometry, in_memory=in_memory)
 
 
-def train_step(policy: VLAPolicy, opt: torch.optim.Optimizer, batch: dict, mode: str, step: int) -> float:
-    gen = torch.Generator().manual_seed(step)
-    layers = policy.resolve_layers(None)
-    if mode == "baseline":
-        loss, _ = policy(batch, generator=gen, shift=4)
-    elif mode == "gaze_probe":
-        with AttentionProbe(policy, policy.gaze_probe_spec("corner2"), adapter="tap") as probe:
+@dataclass
+class Trainer:
+    """One training path: a policy, its optimiser, and whether its forward runs under bf16 autocast."""
+
+    policy: VLAPolicy
+    opt: torch.optim.Optimizer
+    bf16: bool
+
+    @classmethod
+    def for_path(cls, path: str) -> Trainer:
+        s = PATHS[path]
+        policy = make_policy(attention=s["attention"])
+        if s["fused_adamw"]:
+            opt = make_optimiser(policy, TRAIN_CFG)[0]  # what `gazereg train` builds (fused on a CPU)
+        else:  # the per-tensor loop (torch's CPU default before fused=True)
+            o = TRAIN_CFG.optim
+            groups = param_groups(policy, o.weight_decay)
+            opt = torch.optim.AdamW(groups, lr=o.lr, betas=o.betas, fused=False, foreach=False)
+        return cls(policy, opt, s["autocast_bf16"])
+
+
+def train_step(tr: Trainer, batch: dict, term: str, step: int) -> float:
+    """One step as gazereg.training.loop.step runs it: probe and autocast around the forward, the gaze KL
+    outside autocast, backward, clipping, optimiser step."""
+    policy, gen = tr.policy, torch.Generator().manual_seed(step)
+    amp = torch.autocast("cpu", dtype=torch.bfloat16, enabled=tr.bf16)  # accelerate's autocast() on a CPU
+    if term == "baseline":
+        with amp:
+            loss, _ = policy(batch, generator=gen, shift=4)
+    elif term == "gaze":
+        with AttentionProbe(policy, policy.gaze_probe_spec("corner2"), adapter="tap") as probe, amp:
             loss, _ = policy(batch, generator=gen, shift=4)
         kl, _ = gaze_loss(batch["gaze"], probe.distribution(), batch["gaze_valid"])
         loss = loss + 0.1 * kl
     else:  # every layer's (B, H, T, T) probabilities materialised, then the same reduction
-        loss, info = policy(batch, generator=gen, shift=4, output_attentions=True)
+        with amp:
+            loss, info = policy(batch, generator=gen, shift=4, output_attentions=True)
         q, k = policy.action_positions(), policy.patch_positions("corner2")
-        rows = torch.stack([info["attentions"][i][:, :, q, k].mean((1, 2)) for i in layers]).mean(0)
+        att = info["attentions"]
+        rows = torch.stack([att[i][:, :, q, k].mean((1, 2)) for i in policy.resolve_layers(None)]).mean(0)
         kl, _ = gaze_loss(batch["gaze"], rows / rows.sum(-1, keepdim=True), batch["gaze_valid"])
         loss = loss + 0.1 * kl
-    opt.zero_grad(set_to_none=True)
+    tr.opt.zero_grad(set_to_none=True)
     loss.backward()
     torch.nn.utils.clip_grad_norm_(policy.parameters(), 1.0)
-    opt.step()
+    tr.opt.step()
     return float(loss.detach())
 
 
-def saved_bytes(policy: VLAPolicy, batch: dict, mode: str) -> int:
+def time_steps(batches: list[dict], rounds: int, warmup: int) -> tuple[dict, dict]:
+    """Median ms per step of every (path, term), modes interleaved over rounds; and the trainers."""
+    trainers = {m: Trainer.for_path(m[0]) for m in STEP_MODES}
+    for m, tr in trainers.items():
+        for i in range(warmup):
+            train_step(tr, batches[i % len(batches)], m[1], i)
+    times: dict[tuple[str, str], list[float]] = {m: [] for m in STEP_MODES}
+    for _ in range(rounds):
+        for m, tr in trainers.items():
+            for i, b in enumerate(batches):
+                t0 = time.perf_counter()
+                train_step(tr, b, m[1], i)
+                times[m].append(time.perf_counter() - t0)
+    step_ms: dict[str, dict[str, float]] = {p: {} for p in PATHS}
+    for (path, term), v in times.items():
+        step_ms[path][term] = 1000 * statistics.median(v)
+    return step_ms, trainers
+
+
+def model_flops(policy: VLAPolicy, batch: dict) -> dict[str, float]:
+    """GFLOP of one training forward's matmuls (hooks on every Linear / Conv2d; attention's two batched
+    matmuls from the config) and of a step (forward + backward = 3x)."""
+    flops = {"linear": 0, "conv": 0}
+
+    def count(m: torch.nn.Module, _inp: object, out: torch.Tensor) -> None:
+        if isinstance(m, torch.nn.Linear):
+            flops["linear"] += 2 * m.in_features * out.numel()
+        else:
+            kh, kw = m.kernel_size
+            flops["conv"] += 2 * (m.in_channels // m.groups) * kh * kw * out.numel()
+
+    mods = [m for m in policy.modules() if isinstance(m, torch.nn.Linear | torch.nn.Conv2d)]
+    hooks = [m.register_forward_hook(count) for m in mods]
+    try:
+        with torch.no_grad():
+            policy(batch, generator=torch.Generator().manual_seed(0), shift=4)
+    finally:
+        for h in hooks:
+            h.remove()
+    c, B, T = policy.config, batch["state"].shape[0], policy.n_tokens
+    flops["attention"] = c.depth * 2 * (2 * B * c.heads * T * T * (c.dim // c.heads))
+    out = {f"forward_gflop_{k}": v / 1e9 for k, v in flops.items()}
+    out["forward_gflop"] = sum(flops.values()) / 1e9
+    out["model_gflop_per_step"] = 3 * out["forward_gflop"]
+    return out
+
+
+def matmul_peaks(sizes: tuple[int, ...], min_s: float) -> dict[str, dict]:
+    """GFLOP/s of square torch.mm on the current thread count per dtype (fastest call of each size)."""
+    out = {}
+    for dtype in (torch.float32, torch.bfloat16):
+        by_size = {}
+        for n in sizes:
+            a, b = torch.randn(n, n).to(dtype), torch.randn(n, n).to(dtype)
+            torch.mm(a, b)
+            best, t_end, calls = float("inf"), time.perf_counter() + min_s, 0
+            while calls < 3 or time.perf_counter() < t_end:
+                t0 = time.perf_counter()
+                torch.mm(a, b)
+                best, calls = min(best, time.perf_counter() - t0), calls + 1
+            by_size[str(n)] = round(2 * n**3 / best / 1e9, 1)
+        out[str(dtype).removeprefix("torch.")] = {"best": max(by_size.values()), "by_size": by_size}
+    return out
+
+
+def efficiency(step_ms: dict, gflop: float, peaks: dict) -> tuple[dict, dict]:
+    """Achieved GFLOP/s per (path, term); the baseline's fraction of the peaks (own dtype, fp32, bf16)."""
+    achieved = {p: {t: round(gflop * 1000 / ms, 1) for t, ms in v.items()} for p, v in step_ms.items()}
+    fp32, bf16 = peaks["float32"]["best"], peaks["bfloat16"]["best"]
+    fraction = {}
+    for p, v in achieved.items():
+        own = PATHS[p]["autocast_bf16"]
+        fraction[p] = {
+            "own_dtype": "bfloat16" if own else "float32",
+            "of_own_dtype_peak": round(v["baseline"] / (bf16 if own else fp32), 3),
+            "of_fp32_peak": round(v["baseline"] / fp32, 3),
+            "of_bf16_peak": round(v["baseline"] / bf16, 3),
+        }
+    return achieved, fraction
+
+
+def op_category(ev: object) -> str:
+    node = ev
+    while node is not None:
+        if node.name.startswith("Optimizer.step") or node.name == "aten::_fused_adamw_":
+            return "optimizer"
+        node = node.cpu_parent
+    return "attention" if "scaled_dot_product" in ev.name else OP_CATEGORY.get(ev.name, "other")
+
+
+def profile_steps(tr: Trainer, batches: list[dict], term: str, n: int) -> dict:
+    """Self CPU ms per step by category over n profiled steps (profiler overhead included) and the largest
+    ops counted as "other"."""
+    from torch.profiler import ProfilerActivity, profile
+
+    train_step(tr, batches[0], term, 0)
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for i in range(n):
+            train_step(tr, batches[i % len(batches)], term, i)
+    totals, other = dict.fromkeys(CATEGORIES, 0.0), {}
+    for ev in prof.events():
+        cat = op_category(ev)
+        totals[cat] += ev.self_cpu_time_total
+        if cat == "other":
+            other[ev.name] = other.get(ev.name, 0.0) + ev.self_cpu_time_total
+    out: dict = {k: round(v / n / 1000, 2) for k, v in totals.items()}
+    out["total"] = round(sum(totals.values()) / n / 1000, 2)
+    top = sorted(other.items(), key=lambda kv: -kv[1])[:6]
+    out["top_other_ops"] = {k: round(v / n / 1000, 2) for k, v in top}
+    return out
+
+
+def saved_bytes(policy: VLAPolicy, batch: dict, term: str, bf16: bool) -> int:
     """Bytes of tensors autograd saves for backward in one step (activation memory)."""
     total = 0
 
@@ -117,27 +266,25 @@ def saved_bytes(policy: VLAPolicy, batch: dict, mode: str) -> int:
         total += t.numel() * t.element_size()
         return t
 
-    opt = torch.optim.SGD(policy.parameters(), lr=0.0)
+    tr = Trainer(policy, torch.optim.SGD(policy.parameters(), lr=0.0), bf16)
     with torch.autograd.graph.saved_tensors_hooks(pack, lambda t: t):
-        train_step(policy, opt, batch, mode, 0)
+        train_step(tr, batch, term, 0)
     return total
 
 
-def rss_worker(mode: str, batch_size: int, steps: int) -> dict[str, float]:
-    """In a fresh process: RSS after building everything, and the peak RSS while training (sampled every
-    0.5 ms by a thread), in MiB."""
+def rss_worker(term: str, batch_size: int, steps: int) -> dict[str, float]:
+    """In a fresh process (default path): RSS after building everything and the peak RSS while training
+    (sampled every 0.5 ms by a thread), in MiB."""
     import threading
 
     import psutil
 
     proc = psutil.Process()
-    store = make_store(Path(tempfile.mkdtemp()) / "s")
-    policy = make_policy()
-    ds = make_dataset(store, policy)
-    opt = torch.optim.AdamW(policy.parameters(), 1e-3)
+    tr = Trainer.for_path("default")
+    ds = make_dataset(make_store(Path(tempfile.mkdtemp()) / "s"), tr.policy)
     sampler = StepBatchSampler(len(ds), batch_size, 0, steps)
     batches = [ds.__getitems__(sampler.batch_indices(i)) for i in range(steps)]
-    train_step(policy, opt, batches[0], mode, 0)  # optimizer state allocated
+    train_step(tr, batches[0], term, 0)  # optimizer state allocated
     before = proc.memory_info().rss
     peak, stop = before, threading.Event()
 
@@ -150,7 +297,7 @@ def rss_worker(mode: str, batch_size: int, steps: int) -> dict[str, float]:
     th = threading.Thread(target=sample, daemon=True)
     th.start()
     for i, b in enumerate(batches):
-        train_step(policy, opt, b, mode, i)
+        train_step(tr, b, term, i)
     stop.set()
     th.join()
     return {
@@ -160,124 +307,140 @@ def rss_worker(mode: str, batch_size: int, steps: int) -> dict[str, float]:
     }
 
 
-def rss_child(mode: str, batch_size: int, steps: int, threads: int) -> dict[str, float]:
-    cmd = [
-        sys.executable,
-        __file__,
-        "--rss-worker",
-        mode,
-        "--batch",
-        str(batch_size),
-        "--steps",
-        str(steps),
-        "--threads",
-        str(threads),
-    ]
-    r = subprocess.run(cmd, capture_output=True, text=True, check=True)
+def rss_child(term: str, batch_size: int, steps: int, threads: int) -> dict[str, float]:
+    cmd = [sys.executable, __file__, "--rss-worker", term, "--batch", str(batch_size)]
+    r = subprocess.run(
+        [*cmd, "--steps", str(steps), "--threads", str(threads)], capture_output=True, text=True, check=True
+    )
     return {k: round(v, 1) for k, v in json.loads(r.stdout).items()}
 
 
-def main() -> int:
+def inference_ms(ckpts: dict[str, VLAPolicy], rounds: int, calls: int) -> dict[str, float]:
+    """Median float32 `select_action` ms (batch 1; n_action_steps=1, so every call predicts a chunk)."""
+    obs = {"state": np.zeros(4, np.float32), "corner2": np.zeros((96, 96, 3), np.uint8)}
+    lat: dict[str, list[float]] = {k: [] for k in ckpts}
+    for _ in range(rounds):
+        for name, p in ckpts.items():
+            p.reset()
+            p.select_action(obs, "reach the goal")  # warm
+            for _ in range(calls):
+                p.reset()
+                t0 = time.perf_counter()
+                p.select_action(obs, "reach the goal")
+                lat[name].append(time.perf_counter() - t0)
+    return {k: round(1000 * statistics.median(v), 3) for k, v in lat.items()}
+
+
+def loader_rates(store: EpisodeStore, ds: EpisodeDataset, policy: VLAPolicy, batch: int, n: int) -> dict:
+    rates = {}
+    for label, d in (("in_memory", ds), ("mmap", make_dataset(store, policy, in_memory=False))):
+        sampler = StepBatchSampler(len(d), batch, 1, n)
+        t0 = time.perf_counter()
+        for _ in torch.utils.data.DataLoader(d, batch_sampler=sampler, collate_fn=collate_batch):
+            pass
+        rates[label] = round(n * batch / (time.perf_counter() - t0))
+    return rates
+
+
+def machine_info(threads: int) -> dict:
+    info = Path("/proc/cpuinfo")
+    models = [ln.split(":", 1)[1].strip() for ln in info.read_text().splitlines() if "model name" in ln]
+    return {
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpu_model": models[0] if models else None,
+        "cores": len(os.sched_getaffinity(0)),
+        "torch": torch.__version__,
+        "threads": threads,
+        "cpu_flags": {f: f in cpu_flags() for f in sorted(BF16_CPU_FLAGS)},
+        "native_bf16_cpu": native_bf16("cpu"),
+        "resolved_precision": TRAIN_CFG.mixed_precision,
+        "load_avg_before": [round(x, 2) for x in os.getloadavg()],
+        "note": "shared CPU: timings are noisy",
+    }
+
+
+def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--batch", type=int, default=32)
-    ap.add_argument("--steps", type=int, default=15, help="timed steps per mode per round")
-    ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--no-rss", action="store_true", help="skip the per-mode child processes")
-    ap.add_argument("--rss-worker", choices=MODES, help=argparse.SUPPRESS)
+    ap.add_argument("--steps", type=int, help="timed steps per mode per round (default 12, --quick 3)")
+    ap.add_argument("--rounds", type=int, help="default 3, --quick 2")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads (the experiment trains on one)")
+    ap.add_argument("--no-rss", action="store_true", help="skip the per-term child processes")
+    ap.add_argument("--quick", action="store_true", help="smoke run: fewer steps, rounds and repeats")
+    ap.add_argument("--rss-worker", choices=TERMS, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    args.steps = args.steps or (3 if args.quick else 12)
+    args.rounds = args.rounds or (2 if args.quick else 3)
+    return args
+
+
+def report_steps(out: dict, step_ms: dict) -> None:
+    d, e, m = step_ms["default"], step_ms["eager_fp32"], step_ms["math_fp32"]
+    out["step_ms_median"] = {p: {t: round(v, 2) for t, v in terms.items()} for p, terms in step_ms.items()}
+    out["speedup_vs_eager_fp32"] = {t: round(e[t] / d[t], 3) for t in TERMS[:2]}
+    out["speedup_math_fp32_vs_eager_fp32"] = {t: round(e[t] / m[t], 3) for t in TERMS[:2]}
+    out["step_ratio_gaze_vs_baseline"] = round(d["gaze"] / d["baseline"], 3)
+    out["step_ratio_gaze_vs_baseline_by_path"] = {
+        p: round(v["gaze"] / v["baseline"], 3) for p, v in step_ms.items()
+    }
+    out["step_ratio_naive_vs_baseline"] = round(d["naive_all_layers"] / d["baseline"], 3)
+
+
+def report_efficiency(out: dict, step_ms: dict, policy: VLAPolicy, batch: dict, quick: bool) -> None:
+    flops = model_flops(policy, batch)
+    peaks = matmul_peaks((256, 512, 1024), 0.05 if quick else 0.25)
+    out["model_gflop_per_step"] = round(flops["model_gflop_per_step"], 3)
+    out["flops"] = {k: round(v, 4) for k, v in flops.items()}
+    out["flops"]["note"] = "matmuls only (Linear, Conv2d, attention's bmm); step = 3x forward"
+    out["matmul_peak_gflops"] = peaks
+    out["achieved_gflops"], out["fraction_of_peak"] = efficiency(
+        step_ms, flops["model_gflop_per_step"], peaks
+    )
+
+
+def main() -> int:
+    args = parse_args()
     torch.set_num_threads(args.threads)
     if args.rss_worker:
         print(json.dumps(rss_worker(args.rss_worker, args.batch, args.steps)))
         return 0
+    q, out = args.quick, {"machine": machine_info(args.threads), "batch": args.batch, "paths": PATHS}
     tmp = Path(tempfile.mkdtemp())
     store = make_store(tmp / "store")
     base = make_policy()
     ds = make_dataset(store, base)
     sampler = StepBatchSampler(len(ds), args.batch, 0, 10**6)
     batches = [ds.__getitems__(sampler.batch_indices(i)) for i in range(args.steps)]
+    out["policy"] = {"preset": "tiny", "parameters": base.num_parameters(), "tokens": base.n_tokens}
 
-    # ----- step time, modes interleaved --------------------------------------------------------------
-    policies = {m: make_policy() for m in MODES}
-    opts = {m: torch.optim.AdamW(policies[m].parameters(), lr=1e-3) for m in MODES}
-    for m in MODES:  # warm-up
-        for i in range(3):
-            train_step(policies[m], opts[m], batches[i], m, i)
-    times: dict[str, list[float]] = {m: [] for m in MODES}
-    for _ in range(args.rounds):
-        for m in MODES:
-            for i, b in enumerate(batches):
-                t0 = time.perf_counter()
-                train_step(policies[m], opts[m], b, m, i)
-                times[m].append(time.perf_counter() - t0)
-    step_ms = {m: 1000 * statistics.median(v) for m, v in times.items()}
-
-    # ----- activation memory ---------------------------------------------------------------------------
-    act = {m: saved_bytes(make_policy(), batches[0], m) / 2**20 for m in MODES}
-    rss = {} if args.no_rss else {m: rss_child(m, args.batch, 5, args.threads) for m in MODES}
-
-    # ----- inference latency of a baseline and a gaze-trained checkpoint ---------------------------------
-    ckpts = {}
-    for name, mode in (("baseline", "baseline"), ("gaze", "gaze_probe")):
-        p = policies[mode]
-        p.normalizer.set_stats(**ds.stats())
-        ckpts[name] = VLAPolicy.from_pretrained(p.save_pretrained(tmp / f"ckpt_{name}"))
-    obs = {"state": np.zeros(4, np.float32), "corner2": np.zeros((96, 96, 3), np.uint8)}
-    lat: dict[str, list[float]] = {k: [] for k in ckpts}
-    for _ in range(5):
-        for name, p in ckpts.items():
-            p.reset()
-            p.select_action(obs, "reach the goal")  # warm
-            for _ in range(20):
-                p.reset()  # n_action_steps=1 anyway: every call predicts a chunk
-                t0 = time.perf_counter()
-                p.select_action(obs, "reach the goal")
-                lat[name].append(time.perf_counter() - t0)
-    lat_ms = {k: 1000 * statistics.median(v) for k, v in lat.items()}
-
-    # ----- data loading ----------------------------------------------------------------------------------
-    loader_sps = {}
-    for label, in_mem in (("in_memory", True), ("mmap", False)):
-        d = ds if in_mem else make_dataset(store, base, in_memory=False)
-        n = 60
-        dl = torch.utils.data.DataLoader(
-            d, batch_sampler=StepBatchSampler(len(d), args.batch, 1, n), collate_fn=collate_batch
-        )
-        t0 = time.perf_counter()
-        for _ in dl:
-            pass
-        loader_sps[label] = n * args.batch / (time.perf_counter() - t0)
-
-    out = {
-        "machine": {
-            "platform": platform.platform(),
-            "processor": platform.processor() or platform.machine(),
-            "torch": torch.__version__,
-            "threads": args.threads,
-            "note": "shared CPU: timings are noisy",
-        },
-        "policy": {
-            "preset": "tiny",
-            "parameters": base.num_parameters(),
-            "tokens": base.n_tokens,
-            "parameters_baseline_ckpt": ckpts["baseline"].num_parameters(),
-            "parameters_gaze_ckpt": ckpts["gaze"].num_parameters(),
-        },
-        "batch": args.batch,
-        "step_ms_median": {m: round(v, 2) for m, v in step_ms.items()},
-        "step_ratio_gaze_vs_baseline": round(step_ms["gaze_probe"] / step_ms["baseline"], 3),
-        "step_ratio_naive_vs_baseline": round(step_ms["naive_all_layers"] / step_ms["baseline"], 3),
-        "activation_mib_saved_for_backward": {m: round(v, 2) for m, v in act.items()},
-        "rss_fresh_process": rss,
-        "inference_ms_median": {k: round(v, 3) for k, v in lat_ms.items()},
-        "inference_ratio_gaze_vs_baseline": round(lat_ms["gaze"] / lat_ms["baseline"], 3),
-        "loader_samples_per_s": {k: round(v) for k, v in loader_sps.items()},
-        "training_samples_per_s": {m: round(args.batch / (v / 1000), 1) for m, v in step_ms.items()},
-        "loader_over_training": round(
-            loader_sps["in_memory"] / (args.batch / (step_ms["gaze_probe"] / 1000)), 1
-        ),
-        "max_rss_mib_this_process": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+    step_ms, trainers = time_steps(batches, args.rounds, warmup=1 if q else 2)
+    report_steps(out, step_ms)
+    report_efficiency(out, step_ms, base, batches[0], q)
+    n_prof = 2 if q else 5
+    out["profile_default_ms_per_step"] = {
+        t: profile_steps(trainers[("default", t)], batches, t, n_prof) for t in TERMS[:2]
     }
+
+    act = {t: saved_bytes(make_policy(), batches[0], t, BF16) / 2**20 for t in TERMS}
+    out["activation_mib_saved_for_backward_default"] = {t: round(v, 2) for t, v in act.items()}
+    rss = {} if args.no_rss else {t: rss_child(t, args.batch, 5, args.threads) for t in TERMS}
+    out["rss_fresh_process_default"] = rss
+
+    ckpts = {}
+    for term in TERMS[:2]:  # the default path's policies after training, saved and loaded back
+        p = trainers[("default", term)].policy
+        p.normalizer.set_stats(**ds.stats())
+        ckpts[term] = VLAPolicy.from_pretrained(p.save_pretrained(tmp / f"ckpt_{term}"))
+    out["inference_ms_median_fp32"] = lat = inference_ms(ckpts, 2 if q else 5, 10 if q else 20)
+    out["inference_ratio_gaze_vs_baseline"] = round(lat["gaze"] / lat["baseline"], 3)
+
+    out["loader_samples_per_s"] = loader = loader_rates(store, ds, base, args.batch, 20 if q else 60)
+    train_sps = {t: args.batch * 1000 / ms for t, ms in step_ms["default"].items()}
+    out["training_samples_per_s_default"] = {t: round(v, 1) for t, v in train_sps.items()}
+    out["loader_over_training"] = round(loader["in_memory"] / train_sps["gaze"], 1)
+    out["machine"]["load_avg_after"] = [round(x, 2) for x in os.getloadavg()]
+    out["max_rss_mib_this_process"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
     print(json.dumps(out, indent=2))
     return 0
 

@@ -98,3 +98,12 @@ def test_validation_loss_columns_are_training_seeds_in_numeric_order(report):
     report["val_loss"] = {"baseline": 0.3}  # not a run name: refused, not shown under a "-" seed
     with pytest.raises(ValueError, match="is not a run name"):
         markdown(report)
+
+
+def test_a_clean_only_run_has_no_drop_table(report):
+    only_clean = copy.deepcopy(report)
+    for arm in only_clean["success"].values():
+        for cond in [c for c in arm if c != "clean"]:
+            arm.pop(cond)
+    assert "Drop from clean" in markdown(report)
+    assert "Drop from clean" not in markdown(only_clean)

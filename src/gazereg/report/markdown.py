@@ -206,8 +206,11 @@ def success_table_lines(report: dict[str, Any]) -> list[str]:
 
 
 def drop_lines(report: dict[str, Any]) -> list[str]:
-    """Each arm's success under every perturbed condition minus its clean success (rate points)."""
+    """Each arm's success under every perturbed condition minus its clean success (rate points); nothing when
+    the run evaluated no perturbed condition."""
     t, conds = report["success"], conditions(report)
+    if len(conds) < 2:
+        return []
     return [
         "Drop from clean (success rate points):",
         "",
