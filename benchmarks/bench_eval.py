@@ -21,7 +21,6 @@ import argparse
 import dataclasses
 import json
 import os
-import platform
 import statistics
 import tempfile
 import time
@@ -31,13 +30,13 @@ from typing import Any
 
 import numpy as np
 import torch
+from _timing import machine_info
 
 from gazereg.envs import Expert
 from gazereg.envs.render import select_gl_backend
 from gazereg.evaluation.config import EvalConfig
 from gazereg.evaluation.rollout import Job, RolloutWorker
 from gazereg.policies.vla import Tokenizer, VLAConfig, VLAPolicy
-from gazereg.runtime.hardware import BF16_CPU_FLAGS, cpu_flags, native_bf16
 
 EVAL_DEFAULTS = {f.name: f.default for f in dataclasses.fields(EvalConfig)}
 CAMERA, SIZE = "corner2", (96, 96)
@@ -158,23 +157,6 @@ def compare_loops(out: dict, raw_env: Any, env: Any, policy: VLAPolicy, args: ar
     return closed
 
 
-def machine_info(backend: str) -> dict[str, Any]:
-    info = Path("/proc/cpuinfo")
-    models = [ln.split(":", 1)[1].strip() for ln in info.read_text().splitlines() if "model name" in ln]
-    return {
-        "platform": platform.platform(),
-        "processor": platform.processor() or platform.machine(),
-        "cpu_model": models[0] if models else None,
-        "torch": torch.__version__,
-        "torch_threads": torch.get_num_threads(),
-        "pinned_cores": sorted(os.sched_getaffinity(0)),
-        "gl_backend": backend,
-        "cpu_flags": {f: f in cpu_flags() for f in sorted(BF16_CPU_FLAGS)},
-        "native_bf16_cpu": native_bf16("cpu"),
-        "load_avg_before": [round(x, 2) for x in os.getloadavg()],
-    }
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--task", default="reach-v3")
@@ -188,7 +170,11 @@ def main() -> int:
     max_steps = EVAL_DEFAULTS["max_steps"]
     raw_worker = RolloutWorker(max_steps, backend)  # sets torch to 1 thread, as in evaluation
     worker = RolloutWorker(max_steps, backend)
-    out: dict[str, Any] = {"machine": machine_info(backend), "task": args.task, "camera": CAMERA}
+    out: dict[str, Any] = {
+        "machine": machine_info(gl_backend=backend, pinned_cores=sorted(os.sched_getaffinity(0))),
+        "task": args.task,
+        "camera": CAMERA,
+    }
     out.update(image_hw=SIZE, max_steps=max_steps)
     raw_env = raw_worker.env(args.task, "clean", (CAMERA,), SIZE)
     env = worker.env(args.task, "clean", (CAMERA,), SIZE)

@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import resource
 import statistics
 import subprocess
@@ -33,13 +32,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from _timing import machine_info
 
 from gazereg.attention.probe import AttentionProbe
 from gazereg.data.dataset import EpisodeDataset, StepBatchSampler, collate_batch
 from gazereg.data.store import Episode, EpisodeStore
 from gazereg.losses import gaze_loss
 from gazereg.policies.vla import Tokenizer, VLAConfig, VLAPolicy
-from gazereg.runtime.hardware import BF16_CPU_FLAGS, cpu_flags, native_bf16
 from gazereg.training.config import PRESETS
 from gazereg.training.schedule import param_groups
 from gazereg.training.setup import make_optimiser, resolve_precision
@@ -342,24 +341,6 @@ def loader_rates(store: EpisodeStore, ds: EpisodeDataset, policy: VLAPolicy, bat
     return rates
 
 
-def machine_info(threads: int) -> dict:
-    info = Path("/proc/cpuinfo")
-    models = [ln.split(":", 1)[1].strip() for ln in info.read_text().splitlines() if "model name" in ln]
-    return {
-        "platform": platform.platform(),
-        "processor": platform.processor() or platform.machine(),
-        "cpu_model": models[0] if models else None,
-        "cores": len(os.sched_getaffinity(0)),
-        "torch": torch.__version__,
-        "threads": threads,
-        "cpu_flags": {f: f in cpu_flags() for f in sorted(BF16_CPU_FLAGS)},
-        "native_bf16_cpu": native_bf16("cpu"),
-        "resolved_precision": TRAIN_CFG.mixed_precision,
-        "load_avg_before": [round(x, 2) for x in os.getloadavg()],
-        "note": "shared CPU: timings are noisy",
-    }
-
-
 def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--batch", type=int, default=32)
@@ -405,7 +386,16 @@ def main() -> int:
     if args.rss_worker:
         print(json.dumps(rss_worker(args.rss_worker, args.batch, args.steps)))
         return 0
-    q, out = args.quick, {"machine": machine_info(args.threads), "batch": args.batch, "paths": PATHS}
+    q, out = (
+        args.quick,
+        {
+            "machine": machine_info(
+                resolved_precision=TRAIN_CFG.mixed_precision, note="shared CPU: timings are noisy"
+            ),
+            "batch": args.batch,
+            "paths": PATHS,
+        },
+    )
     tmp = Path(tempfile.mkdtemp())
     store = make_store(tmp / "store")
     base = make_policy()
