@@ -162,12 +162,16 @@ class Run:
         return self.acc.autocast() if self.cfg.mixed_precision != "no" else contextlib.nullcontext()
 
 
+def trains_on_cuda(cfg: TrainConfig) -> bool:
+    """Whether cfg.device means a CUDA GPU: "cuda", or "auto" where one is available."""
+    return cfg.device == "cuda" or (cfg.device == "auto" and torch.cuda.is_available())
+
+
 def resolve_precision(cfg: TrainConfig) -> TrainConfig:
     """cfg with mixed_precision "auto" replaced by what the training device supports: bf16 or no."""
     if cfg.mixed_precision != "auto":
         return cfg
-    cuda = cfg.device == "cuda" or (cfg.device == "auto" and torch.cuda.is_available())
-    chosen = "bf16" if native_bf16("cuda" if cuda else "cpu") else "no"
+    chosen = "bf16" if native_bf16("cuda" if trains_on_cuda(cfg) else "cpu") else "no"
     return dataclasses.replace(cfg, mixed_precision=chosen)
 
 
@@ -177,8 +181,7 @@ def make_accelerator(cfg: TrainConfig) -> Any:
 
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
-    use_cpu = cfg.device == "cpu" or (cfg.device == "auto" and not torch.cuda.is_available())
-    acc = Accelerator(cpu=use_cpu, mixed_precision=cfg.mixed_precision)
+    acc = Accelerator(cpu=not trains_on_cuda(cfg), mixed_precision=cfg.mixed_precision)
     if cfg.batch_size % acc.num_processes:
         raise UsageError(
             f"{option('batch_size')} {cfg.batch_size} must be divisible by the number of processes "

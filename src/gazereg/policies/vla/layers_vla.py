@@ -40,8 +40,9 @@ def attention_bias(mask: Tensor) -> Tensor:
 
 class Attention(nn.Module):
     """Multi-head self-attention. `impl` "math": softmax(q k^T / sqrt(d) + bias) V written out, in the compute
-    dtype (bf16 under autocast; the softmax accumulates in float32); "sdpa": `F.scaled_dot_product_attention` (fused kernels for long sequences and
-    GPUs). Both compute the same function; which is faster depends on the machine (benchmarks/bench_train.py)."""
+    dtype (bf16 under autocast; the softmax accumulates in float32); "sdpa": `F.scaled_dot_product_attention`
+    (fused kernels for long sequences and GPUs). Both compute the same function; which is faster depends on
+    the machine (benchmarks/bench_train.py)."""
 
     def __init__(self, dim: int, heads: int, layer: int, dropout: float, impl: str = "math"):
         super().__init__()
