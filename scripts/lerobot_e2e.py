@@ -3,7 +3,7 @@
 
     .venv/bin/python scripts/lerobot_e2e.py --out runs/lerobot_e2e                       # toy size (defaults)
     .venv/bin/python scripts/lerobot_e2e.py --out runs/e2e --tasks reach-v3 --demos 20 --steps 2000 \
-        --eval-episodes 50
+        --eval-episodes 50 --gaze-source glc
 
 Two interpreters: this one (the project venv: gazereg, Meta-World, MuJoCo) and the LeRobot lane's
 (`--lane-python`, lerobot 0.6.1 + the plugin). Stages, each a subprocess:
@@ -12,14 +12,14 @@ Two interpreters: this one (the project venv: gazereg, Meta-World, MuJoCo) and t
      save_episode / finalize`, with a `gaze.point` column: the visuomotor gaze model's per-frame (u, v) trace
      (it needs the simulator's key points, which only the collected store has, so the trace is computed here
      and travels in the data set as recorded gaze).
-  3. `gazereg import lerobot` -> `gazereg priors --source recorded` -> `gazereg import write-gaze`: the priors
-     as gaze.<camera>.heatmap / .valid in a new data set version.
+  3. `gazereg import lerobot` -> `gazereg priors` -> `gazereg import write-gaze`: the priors as
+     gaze.<camera>.heatmap / .valid in a new data set version. `--gaze-source visuomotor` (default): priors from
+     the recorded trace. `--gaze-source glc` (the paper's path, no eye tracker): `gazereg glc train` on the
+     visuomotor gaze of demos on setups of their own (seeds after the policy's demos), then GLC predicts every
+     imported episode's gaze from its video frames alone (`priors --source glc`).
   4. lane: the real `lerobot-train`, --policy.type=smolvla and smolvla_gaze, same data, seed and steps, from
      scratch on a tiny random SmolVLM (offline, CPU).
-  5. both checkpoints on the same unseen setups (seeds from --eval-seed): the rollouts run here, the policy in
-     the lane through `lerobot_policy_gazereg.eval_adapter` (LeRobot 0.6.1 has a Meta-World env, but it needs
-     metaworld in the lane venv); success with Wilson intervals and the exact McNemar test on the pairs; each
-     policy's attention to the image tokens on data set frames next to the prior (OUT/attention.png, KL).
+  5. both checkpoints on the same unseen setups (seeds from --eval-seed), scripts/lerobot_e2e_eval.py.
 Results: OUT/results.json, and a summary on stdout.
 """
 
@@ -35,12 +35,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from lerobot_e2e_eval import attention_figure, evaluate
 
 LANE_PYTHON = Path("/root/.cache/gazereg/lerobot-py312/bin/python")
 REPO_ID = "local/metaworld_e2e"
 MAX_FAILURES = 20  # extra demo seeds tried per task: demos use seeds demo_seed .. demo_seed + demos + 20
 ROOT = Path(__file__).resolve().parents[1]
-ADAPTER = ROOT / "lerobot_plugin" / "src" / "lerobot_policy_gazereg" / "eval_adapter.py"
 OFFLINE = {"HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1", "WANDB_MODE": "disabled"}
 
 
@@ -161,148 +161,6 @@ def train_args(kind: str, a: argparse.Namespace, data: Path, vlm: Path, out: Pat
     return args
 
 
-# ----- stage 5: evaluation ----------------------------------------------------------------------------------------
-
-
-def _protocol() -> Any:
-    """The adapter module's message functions, loaded from its file (this interpreter has no lerobot, and the
-    plugin package's __init__ imports it)."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("_e2e_protocol", ADAPTER)
-    mod = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
-    spec.loader.exec_module(mod)  # type: ignore[union-attr]
-    return mod
-
-
-class PipePolicy:
-    """A LeRobot checkpoint served by the lane's `lerobot_policy_gazereg.eval_adapter` over a pipe."""
-
-    def __init__(self, lane_python: str, checkpoint: Path, log: Path):
-        proto = _protocol()
-        self._read, self._write = proto.read_message, proto.write_message
-        self._log = log.open("w")
-        cmd = [lane_python, "-m", "lerobot_policy_gazereg.eval_adapter", str(checkpoint)]
-        env = {**os.environ, **OFFLINE}
-        self.proc = subprocess.Popen(
-            cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._log, env=env
-        )
-        self.ask(None)
-
-    def ask(self, msg: dict[str, Any] | None) -> dict[str, Any]:
-        if msg is not None:
-            self._write(self.proc.stdin, msg)
-        reply = self._read(self.proc.stdout)
-        if reply is None or "error" in reply:
-            why = "the policy server exited" if reply is None else reply["error"]
-            raise SystemExit(f"lerobot_e2e: evaluation failed: {why} (log: {self._log.name})")
-        return reply
-
-    def reset(self) -> None:
-        self.ask({"op": "reset"})
-
-    def act(self, images: dict[str, np.ndarray], state: np.ndarray, task: str) -> np.ndarray:
-        return self.ask({"op": "act", "images": images, "state": state, "task": task})["action"]
-
-    def close(self) -> None:
-        try:
-            self._write(self.proc.stdin, {"op": "close"})
-            self.proc.wait(timeout=60)
-        except (OSError, subprocess.TimeoutExpired):  # already gone, or stuck: do not hide the first error
-            self.proc.kill()
-        self._log.close()
-
-
-def rollout(policy: PipePolicy, env: Any, seed: int, camera: str) -> tuple[bool, int]:
-    """One episode on setup `seed` of `env` (a gazereg Meta-World env): (success, steps)."""
-    obs, info = env.reset(seed=seed)
-    policy.reset()
-    done, steps = False, 0
-    while not done:
-        images = {f"observation.images.{camera}": obs["images"][camera]}
-        action = np.clip(policy.act(images, obs["state"], obs["instruction"]), -1.0, 1.0)
-        obs, _, term, trunc, info = env.step(action)
-        done, steps = bool(term or trunc), steps + 1
-    return bool(info["success"]), steps
-
-
-def run_arm(policy: PipePolicy, seeds: list[int], a: argparse.Namespace) -> list[tuple[str, int, bool, int]]:
-    """(task, seed, success, steps) of every task on every seed."""
-    from gazereg.envs.metaworld.env import MetaWorldEnv
-
-    kw: dict[str, Any] = {"max_steps": a.eval_max_steps} if a.eval_max_steps else {}
-    runs = []
-    for task in a.tasks:
-        env = MetaWorldEnv(task, cameras=(a.camera,), image_size=a.image_size, **kw)
-        try:
-            runs += [(task, s, *rollout(policy, env, s, a.camera)) for s in seeds]
-        finally:
-            env.close()
-    return runs
-
-
-def evaluate(
-    arms: dict[str, Path], a: argparse.Namespace, data: Path, logs: Path
-) -> tuple[dict[str, Any], dict[str, dict[str, np.ndarray]]]:
-    """Both checkpoints on the same setups: (success per episode, Wilson intervals and exact McNemar on the
-    pairs; each arm's attention maps on frames of the data set `data`, see eval_adapter.attention_maps)."""
-    from gazereg.evaluation.stats import mcnemar_exact, paired_counts, wilson
-
-    seeds = [a.eval_seed + i for i in range(a.eval_episodes)]
-    out: dict[str, Any] = {"setup_seeds": seeds, "arms": {}}
-    maps = {}
-    ask = {"op": "attention", "root": str(data), "gaze_key": f"gaze.{a.camera}.heatmap"}
-    for arm, ckpt in arms.items():
-        t0 = time.time()
-        policy = PipePolicy(a.lane_python, ckpt, logs / f"eval_{arm}.log")
-        try:
-            maps[arm] = policy.ask({**ask, "camera": f"observation.images.{a.camera}"})["maps"]
-            runs = run_arm(policy, seeds, a)
-        finally:
-            policy.close()
-        ok = [r[2] for r in runs]
-        lo, hi = wilson(sum(ok), len(ok))
-        out["arms"][arm] = {
-            "success": ok,
-            "steps": [r[3] for r in runs],
-            "rate": sum(ok) / len(ok),
-            "wilson95": [lo, hi],
-            "seconds": round(time.time() - t0, 1),
-        }
-        print(f"  eval {arm}: {sum(ok)}/{len(ok)} ({time.time() - t0:.1f} s)", flush=True)
-    a_ok, b_ok = (out["arms"][k]["success"] for k in ("smolvla", "smolvla_gaze"))
-    out["paired"] = {
-        "both_onlysmolvla_onlygaze_neither": paired_counts(a_ok, b_ok),
-        "mcnemar": mcnemar_exact(a_ok, b_ok),
-    }
-    return out, maps
-
-
-def attention_figure(maps: dict[str, dict[str, np.ndarray]], out: Path) -> dict[str, float | None]:
-    """Each arm's attention to the camera's image tokens on the same data set frames (from the eval adapter),
-    drawn next to the gaze prior on the token grid into OUT/attention.png; returns {arm: mean KL(gaze ||
-    attention) over the frames with gaze}."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    first = next(iter(maps.values()))
-    n = len(first["index"])
-    fig, ax = plt.subplots(n, 2 + len(maps), figsize=(2.2 * (2 + len(maps)), 2.2 * n), squeeze=False)
-    for i in range(n):
-        panels = [("frame", first["image"][i]), ("gaze prior (tokens)", first["gaze"][i])]
-        panels += [(f"{arm} KL {m['kl'][i]:.2f}", m["attention"][i]) for arm, m in maps.items()]
-        for j, (title, img) in enumerate(panels):
-            ax[i, j].imshow(img, **({} if j == 0 else {"cmap": "magma"}))
-            ax[i, j].set_title(title if j > 1 else f"{title} #{first['index'][i]}", fontsize=7)
-            ax[i, j].axis("off")
-    fig.tight_layout()
-    fig.savefig(out / "attention.png", dpi=100)
-    plt.close(fig)
-    return {arm: float(m["kl"][m["valid"]].mean()) if m["valid"].any() else None for arm, m in maps.items()}
-
-
 # ----- the pipeline -----------------------------------------------------------------------------------------------
 
 
@@ -326,6 +184,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--image-size", type=int, default=64)
     p.add_argument("--prior-size", type=int, default=16, help="side of the written gaze heatmaps")
     p.add_argument(
+        "--gaze-source",
+        choices=("visuomotor", "glc"),
+        default="visuomotor",
+        help="the gaze arm's prior: the simulated eye trace carried in the data set, or GLC predicting it from video",
+    )
+    p.add_argument("--glc-demos", type=int, default=4, help="GLC's own demos per task (--gaze-source glc)")
+    p.add_argument("--glc-steps", type=int, default=600, help="GLC training steps (--gaze-source glc)")
+    p.add_argument(
         "--lane-python", default=str(LANE_PYTHON), help="the interpreter with lerobot 0.6.1 + plugin"
     )
     p.add_argument("--stage", default="all", help=argparse.SUPPRESS)  # internal: write-lerobot (lane)
@@ -335,11 +201,61 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+def _collect(
+    gz: list[str], a: argparse.Namespace, out: Path, episodes: int, seed_base: int, log: Path
+) -> None:
+    """`gazereg collect`: `episodes` expert demos per task from setup seed `seed_base` on into store `out`."""
+    cmd = [*gz, "collect", f"--out={out}", "--tasks", *a.tasks, f"--episodes={episodes}"]
+    cmd += [f"--seed-base={seed_base}", f"--max-failures={MAX_FAILURES}", f"--cameras={a.camera}"]
+    _run([*cmd, f"--image-size={a.image_size}", "--no-progress"], log)
+
+
+def check_seeds(a: argparse.Namespace) -> None:
+    """Exit when the demos' setup seeds (and GLC's, with --gaze-source glc) reach the evaluation seeds."""
+    ranges = [("demos", a.demo_seed, a.demo_seed + a.demos + MAX_FAILURES)]
+    if a.gaze_source == "glc":
+        ranges.append(("GLC demos", glc_seed(a), glc_seed(a) + a.glc_demos + MAX_FAILURES))
+    lo, hi = a.eval_seed, a.eval_seed + a.eval_episodes
+    for name, start, stop in ranges:
+        if start < hi and lo < stop:
+            raise SystemExit(
+                f"lerobot_e2e: evaluation seeds {lo}..{hi - 1} overlap the {name}' {start}..{stop - 1}"
+            )
+
+
+def glc_seed(a: argparse.Namespace) -> int:
+    """First setup seed of GLC's own demos: after every seed the policy's demos may use."""
+    return a.demo_seed + a.demos + MAX_FAILURES
+
+
+def make_priors(gz: list[str], a: argparse.Namespace, store: Path, out: Path, logs: Path) -> dict[str, Any]:
+    """The gaze prior of every imported episode, named after a.gaze_source: `recorded` (the visuomotor trace
+    the data set carries as gaze.point) or `glc` (a small GLC trained here on the visuomotor gaze of demos on
+    setups of their own, predicting from the data set's video frames alone). Returns GLC's held-out quality
+    (None for visuomotor, or when GLC held nothing out)."""
+    size, cam = [str(a.prior_size)] * 2, a.camera
+    pri = [*gz, "priors", f"--store={store}", f"--camera={cam}", "--size", *size]
+    if a.gaze_source == "visuomotor":
+        _run([*pri, "--source=recorded"], logs / "3_priors.log")
+        return {"prior": "recorded", "glc": None}
+    _collect(gz, a, out / "glc_collected", a.glc_demos, glc_seed(a), logs / "3_glc_collect.log")
+    glc = [*gz, "glc", "train", f"--store={out / 'glc_collected'}", f"--camera={cam}", f"--out={out / 'glc'}"]
+    _run([*glc, "--gaze-source=visuomotor", f"--optim.steps={a.glc_steps}"], logs / "3_glc_train.log")
+    ckpt = out / "glc" / "final"
+    _run([*pri, "--source=glc", "--source-params", f"checkpoint={ckpt}"], logs / "3_priors.log")
+    quality = None
+    if (out / "glc" / "eval.json").exists():
+        rep = json.loads((out / "glc" / "eval.json").read_text())
+        scores = rep["scores"]["all_valid"]
+        quality = {"heldout_episodes": len(rep["episodes"])}
+        quality.update({f"{k}_{m}": scores[k][m] for k in ("glc", "centre_prior") for m in ("f1", "auc")})
+    return {"prior": "glc", "glc": quality}
+
+
 def pipeline(a: argparse.Namespace) -> dict[str, Any]:
     """Stages 1-5 (module doc) under a.out; returns the results."""
     gz, lane, out = [sys.executable, "-m", "gazereg.cli"], a.lane_python, a.out.resolve()
-    if a.eval_seed < a.demo_seed + a.demos + MAX_FAILURES and a.demo_seed < a.eval_seed + a.eval_episodes:
-        raise SystemExit(f"lerobot_e2e: evaluation seeds from {a.eval_seed} overlap the demos' setup seeds")
+    check_seeds(a)
     if out.exists():
         raise SystemExit(f"lerobot_e2e: --out {out} exists; give a new folder")
     if not Path(lane).exists():
@@ -347,18 +263,9 @@ def pipeline(a: argparse.Namespace) -> dict[str, Any]:
     logs = out / "logs"
     logs.mkdir(parents=True)
     t0, cam = time.time(), a.camera
-    collect = [*gz, "collect", f"--out={out / 'collected'}", "--tasks", *a.tasks, f"--episodes={a.demos}"]
-    collect += [
-        f"--seed-base={a.demo_seed}",
-        f"--max-failures={MAX_FAILURES}",
-        f"--cameras={cam}",
-        f"--image-size={a.image_size}",
-        "--no-progress",
-    ]
-    _run(collect, logs / "1_collect.log")
+    _collect(gz, a, out / "collected", a.demos, a.demo_seed, logs / "1_collect.log")
     export_demos(out / "collected", cam, out / "npz")
-    data, data_gaze = out / "lerobot", out / "lerobot_gaze"
-    vlm = out / "tiny_smolvlm"
+    data, data_gaze, vlm = out / "lerobot", out / "lerobot_gaze", out / "tiny_smolvlm"
     me = [
         lane,
         str(Path(__file__).resolve()),
@@ -371,34 +278,32 @@ def pipeline(a: argparse.Namespace) -> dict[str, Any]:
     _run(
         [*gz, "import", "lerobot", f"--root={data}", f"--out={store}", "--no-progress"], logs / "3_import.log"
     )
-    size = [str(a.prior_size)] * 2
-    pri = [*gz, "priors", f"--store={store}", "--source=recorded", f"--camera={cam}", "--size", *size]
-    _run(pri, logs / "3_priors.log")
-    wg = [
-        *gz,
-        "import",
-        "write-gaze",
-        f"--store={store}",
-        "--prior=recorded",
-        f"--root={data}",
-        f"--out={data_gaze}",
-    ]
-    _run([*wg, "--no-progress"], logs / "3_write_gaze.log")
+    prior = make_priors(gz, a, store, out, logs)
+    wg = [*gz, "import", "write-gaze", f"--store={store}", f"--prior={prior['prior']}", f"--root={data}"]
+    _run([*wg, f"--out={data_gaze}", "--no-progress"], logs / "3_write_gaze.log")
     arms = {}
     for kind in ("smolvla", "smolvla_gaze"):
         _run(train_args(kind, a, data_gaze, vlm, out / f"train_{kind}"), logs / f"4_train_{kind}.log")
         arms[kind] = out / f"train_{kind}" / "checkpoints" / "last" / "pretrained_model"
     results, maps = evaluate(arms, a, data_gaze, logs)
     results["attention_kl_gaze_to_attention"] = attention_figure(maps, out)
-    results.update(tasks=a.tasks, demos=a.demos, steps=a.steps, wall_s=round(time.time() - t0, 1))
+    results.update(tasks=a.tasks, demos=a.demos, steps=a.steps, gaze_source=a.gaze_source, glc=prior["glc"])
+    results["wall_s"] = round(time.time() - t0, 1)
     (out / "results.json").write_text(json.dumps(results, indent=1))
     return results
 
 
 def summary(r: dict[str, Any]) -> str:
     lines = [
-        f"tasks {r['tasks']}, {r['demos']} demos/task, {r['steps']} training steps, setups {r['setup_seeds']}"
+        f"tasks {r['tasks']}, {r['demos']} demos/task, {r['steps']} training steps, setups {r['setup_seeds']}",
+        f"gaze prior: {r['gaze_source']}",
     ]
+    if r["glc"]:
+        g = r["glc"]
+        lines.append(
+            f"GLC on {g['heldout_episodes']} held-out episodes: F1 {g['glc_f1']:.3f} (centre prior "
+            f"{g['centre_prior_f1']:.3f}), AUC {g['glc_auc']:.3f} (centre prior {g['centre_prior_auc']:.3f})"
+        )
     for arm, v in r["arms"].items():
         lo, hi = v["wilson95"]
         lines.append(

@@ -76,3 +76,36 @@ def test_lerobot_e2e_toy(tmp_path, project_python):
     kl = res["attention_kl_gaze_to_attention"]
     assert set(kl) == {"smolvla", "smolvla_gaze"} and all(v is not None and v >= 0 for v in kl.values())
     assert "McNemar p =" in r.stdout and "wall time" in r.stdout
+
+
+@pytest.mark.slow
+def test_lerobot_e2e_toy_with_glc_priors(tmp_path, project_python):
+    """--gaze-source glc: GLC trained on demos of its own setups predicts the priors from the frames alone; its
+    held-out quality is in the results, and the gaze feature comes from its prior."""
+    out = tmp_path / "e2e"
+    cmd = [str(project_python), str(SCRIPT), f"--out={out}", f"--lane-python={sys.executable}"]
+    cmd += ["--tasks", "reach-v3", "--demos=2", "--steps=2", "--eval-episodes=1", "--eval-max-steps=10"]
+    cmd += ["--gaze-source=glc", "--glc-demos=5", "--glc-steps=2"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path, env=env)
+    assert r.returncode == 0, (r.stdout + r.stderr)[-4000:]
+    res = json.loads((out / "results.json").read_text())
+    assert res["gaze_source"] == "glc"
+    g = res["glc"]
+    assert g["heldout_episodes"] >= 1 and all(
+        0.0 <= g[k] <= 1.0 for k in ("glc_f1", "glc_auc", "centre_prior_f1")
+    )
+    # GLC's seeds come after the policy's demos and before the evaluation's
+    attempts = (out / "glc_collected" / "collect" / "attempts.jsonl").read_text().splitlines()
+    seeds = {json.loads(line)["record"]["seed"] for line in attempts}
+    assert seeds and min(seeds) >= 2 + 20 and max(seeds) < 1000, seeds  # after demos + MAX_FAILURES
+    manifest = json.loads((out / "imported" / "priors" / "glc" / "prior.json").read_text())
+    assert manifest["source"]["name"] == "glc"
+    assert "GLC on 1 held-out episodes" in r.stdout
+
+
+def test_seed_ranges_that_reach_the_evaluation_are_refused(tmp_path, project_python):
+    cmd = [str(project_python), str(SCRIPT), f"--out={tmp_path / 'e2e'}", "--demos=2", "--gaze-source=glc"]
+    r = subprocess.run([*cmd, "--glc-demos=990"], capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0 and "overlap the GLC demos'" in r.stderr, r.stderr[-2000:]
+    assert not (tmp_path / "e2e").exists()
