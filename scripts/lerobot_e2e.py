@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import subprocess
 import sys
 import time
@@ -35,17 +36,19 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from lerobot_e2e_eval import attention_figure, evaluate
+from lerobot_e2e_eval import attention_figure, evaluate, report_markdown
 
 LANE_PYTHON = Path("/root/.cache/gazereg/lerobot-py312/bin/python")
 REPO_ID = "local/metaworld_e2e"
 MAX_FAILURES = 20  # extra demo seeds tried per task: demos use seeds demo_seed .. demo_seed + demos + 20
 ROOT = Path(__file__).resolve().parents[1]
+STAGE_SECONDS: dict[str, float] = {}  # this process's stages (one pipeline per process), for the report
 OFFLINE = {"HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1", "WANDB_MODE": "disabled"}
 
 
-def _run(cmd: list[str], log: Path) -> None:
-    """Run `cmd`, its output into `log`; on failure exit naming the command and the log's tail."""
+def _run(cmd: list[str], log: Path) -> float:
+    """Run `cmd`, its output into `log`; its wall time in seconds. On failure exit naming the command and the
+    log's tail."""
     env = {**os.environ, **OFFLINE}
     t0 = time.time()
     with log.open("w") as f:
@@ -55,7 +58,10 @@ def _run(cmd: list[str], log: Path) -> None:
         raise SystemExit(
             f"{tail}\nlerobot_e2e: step failed ({r.returncode}): {' '.join(cmd[:3])} ... (log: {log})"
         )
-    print(f"  {log.stem}: {time.time() - t0:.1f} s", flush=True)
+    seconds = time.time() - t0
+    STAGE_SECONDS[log.stem] = round(seconds, 1)
+    print(f"  {log.stem}: {seconds:.1f} s", flush=True)
+    return seconds
 
 
 # ----- stage 2: the demos as a LeRobot v3 data set ---------------------------------------------------------------
@@ -194,6 +200,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument(
         "--lane-python", default=str(LANE_PYTHON), help="the interpreter with lerobot 0.6.1 + plugin"
     )
+    p.add_argument(
+        "--results-block",
+        type=Path,
+        metavar="RUN",
+        help="only write docs/results.md's block --marker from the finished run RUN (no run)",
+    )
+    p.add_argument("--marker", default="lerobot-e2e", help="the docs/results.md block --results-block writes")
     p.add_argument("--stage", default="all", help=argparse.SUPPRESS)  # internal: write-lerobot (lane)
     p.add_argument("--npz", type=Path, help=argparse.SUPPRESS)
     p.add_argument("--root", type=Path, help=argparse.SUPPRESS)
@@ -288,43 +301,53 @@ def pipeline(a: argparse.Namespace) -> dict[str, Any]:
     results, maps = evaluate(arms, a, data_gaze, logs)
     results["attention_kl_gaze_to_attention"] = attention_figure(maps, out)
     results.update(tasks=a.tasks, demos=a.demos, steps=a.steps, gaze_source=a.gaze_source, glc=prior["glc"])
-    results["wall_s"] = round(time.time() - t0, 1)
+    results.update(wall_s=round(time.time() - t0, 1), stage_seconds=dict(STAGE_SECONDS), machine=machine())
+    results["command"] = shlex.join(["python", "scripts/lerobot_e2e.py", *a.argv])
     (out / "results.json").write_text(json.dumps(results, indent=1))
     return results
 
 
-def summary(r: dict[str, Any]) -> str:
-    lines = [
-        f"tasks {r['tasks']}, {r['demos']} demos/task, {r['steps']} training steps, setups {r['setup_seeds']}",
-        f"gaze prior: {r['gaze_source']}",
-    ]
-    if r["glc"]:
-        g = r["glc"]
-        lines.append(
-            f"GLC on {g['heldout_episodes']} held-out episodes: F1 {g['glc_f1']:.3f} (centre prior "
-            f"{g['centre_prior_f1']:.3f}), AUC {g['glc_auc']:.3f} (centre prior {g['centre_prior_auc']:.3f})"
-        )
-    for arm, v in r["arms"].items():
-        lo, hi = v["wilson95"]
-        lines.append(
-            f"{arm:13s} success {sum(v['success'])}/{len(v['success'])} = {v['rate']:.2f} [{lo:.2f}, {hi:.2f}]"
-        )
-    m = r["paired"]["mcnemar"]
-    lines.append(
-        f"paired: only smolvla {m['a_only']}, only smolvla_gaze {m['b_only']}, McNemar p = {m['p_value']:.3f}"
-    )
-    kl = ", ".join(f"{k} {v:.3f}" for k, v in r["attention_kl_gaze_to_attention"].items() if v is not None)
-    lines.append(f"KL(gaze || attention) on data set frames: {kl} (figure: attention.png)")
-    lines.append(f"wall time {r['wall_s']} s")
-    return "\n".join(lines)
+def machine() -> str:
+    """This machine in a few words: CPU model, cores, torch."""
+    import platform
+
+    import torch
+
+    cpu = platform.processor() or platform.machine()
+    for line in Path("/proc/cpuinfo").read_text().splitlines() if Path("/proc/cpuinfo").exists() else []:
+        if line.startswith("model name"):
+            cpu = line.split(":", 1)[1].strip()
+            break
+    return f"{cpu}, {os.cpu_count()} cores, torch {torch.__version__}"
+
+
+def results_block(run: Path, marker: str) -> None:
+    """docs/results.md's block `marker` from a finished run's results.json, its figure copied to
+    docs/figures/<marker>-attention.png."""
+    import shutil
+
+    from update_results import FIGURES, RESULTS_PAGE, replace_block
+
+    results = json.loads((run / "results.json").read_text())
+    figure = ROOT / FIGURES / f"{marker}-attention.png"
+    shutil.copyfile(run / "attention.png", figure)
+    block = report_markdown(results, figure=str(figure.relative_to(ROOT / RESULTS_PAGE.parent)))
+    replace_block(ROOT / RESULTS_PAGE, marker, block)
+    print(f"wrote block {marker} of {RESULTS_PAGE} from {run / 'results.json'}")
 
 
 def main(argv: list[str] | None = None) -> int:
     a = parse_args(argv)
+    a.argv = list(sys.argv[1:] if argv is None else argv)
     if a.stage == "write-lerobot":
         write_lerobot(a.npz, a.root, a.camera, a.vlm)
         return 0
-    print(summary(pipeline(a)))
+    if a.results_block:
+        results_block(a.results_block, a.marker)
+        return 0
+    results = pipeline(a)
+    (a.out / "report.md").write_text(report_markdown(results))
+    print(report_markdown(results))
     return 0
 
 

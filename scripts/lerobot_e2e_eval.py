@@ -123,6 +123,7 @@ def evaluate(
         out["arms"][arm] = {
             "success": ok,
             "steps": [r[3] for r in runs],
+            "task": [r[0] for r in runs],
             "rate": sum(ok) / len(ok),
             "wilson95": [lo, hi],
             "seconds": round(time.time() - t0, 1),
@@ -159,3 +160,47 @@ def attention_figure(maps: dict[str, dict[str, np.ndarray]], out: Path) -> dict[
     fig.savefig(out / "attention.png", dpi=100)
     plt.close(fig)
     return {arm: float(m["kl"][m["valid"]].mean()) if m["valid"].any() else None for arm, m in maps.items()}
+
+
+def report_markdown(r: dict[str, Any], figure: str = "attention.png") -> str:
+    """The run's results as markdown: the command, the data and budget, GLC's held-out quality, success per
+    task and pooled with Wilson intervals, the paired test, the attention KL and the stage times."""
+    from gazereg.evaluation.stats import wilson
+
+    lines = [
+        f"Command: `{r['command']}` ({r['machine']}, wall time {r['wall_s'] / 60:.1f} min).",
+        "",
+        f"Tasks {', '.join(r['tasks'])}: {r['demos']} expert demos per task, {r['steps']} lerobot-train steps per "
+        f"arm, evaluation on the same {len(r['setup_seeds'])} unseen setups per task (seeds "
+        f"{r['setup_seeds'][0]}..{r['setup_seeds'][-1]}); gaze prior: {r['gaze_source']}.",
+    ]
+    if r.get("glc"):
+        g = r["glc"]
+        lines += [
+            "",
+            f"GLC on {g['heldout_episodes']} held-out episodes of its own setups: F1 {g['glc_f1']:.3f} (centre "
+            f"prior {g['centre_prior_f1']:.3f}), AUC {g['glc_auc']:.3f} (centre prior {g['centre_prior_auc']:.3f}).",
+        ]
+    arms = list(r["arms"])
+    lines += ["", "| task | " + " | ".join(arms) + " |", "|---" * (len(arms) + 1) + "|"]
+    for task in [*r["tasks"], "pooled"]:
+        cells = []
+        for arm in arms:
+            v = r["arms"][arm]
+            ok = [s for s, t in zip(v["success"], v["task"]) if task in ("pooled", t)]
+            lo, hi = wilson(sum(ok), len(ok))
+            cells.append(f"{sum(ok)}/{len(ok)} [{lo:.2f}, {hi:.2f}]")
+        lines.append(f"| {task} | " + " | ".join(cells) + " |")
+    m = r["paired"]["mcnemar"]
+    kl = ", ".join(f"{k} {v:.3f}" for k, v in r["attention_kl_gaze_to_attention"].items() if v is not None)
+    times = ", ".join(f"{k} {v / 60:.1f}" for k, v in r["stage_seconds"].items())
+    lines += [
+        "",
+        f"Paired on the setups: only smolvla {m['a_only']}, only smolvla_gaze {m['b_only']}, exact McNemar "
+        f"p = {m['p_value']:.3f}. Success cells: successes/episodes [Wilson 95% interval].",
+        "",
+        f"KL(gaze || attention to the image tokens) on data set frames: {kl}. Stage times (min): {times}.",
+        "",
+        f"![attention: frame, gaze prior, each arm's attention]({figure})",
+    ]
+    return "\n".join(lines) + "\n"
