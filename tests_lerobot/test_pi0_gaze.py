@@ -177,12 +177,54 @@ def test_gaze_gradient_reaches_the_action_expert(kind, tiny, dataset):
     assert expert.self_attn.q_proj.weight.grad.abs().sum() > 0
 
 
+@pytest.mark.parametrize("kind", KINDS)
+def test_gradient_checkpointing_gives_the_same_loss_and_gradients(kind, tiny, dataset, monkeypatch):
+    """With lerobot's gradient checkpointing the layers are recomputed in backward (counted here) and every
+    parameter's gradient, the gaze term's included, equals the one without it (the issue: a CheckpointError or
+    a gaze term without gradient)."""
+    from transformers.models.gemma import modeling_gemma
+
+    _, policy = _policies(kind)
+    policy.train()
+    batch, grads, losses, forward_calls, recomputed = _batch(dataset), [], [], [], []
+    eager = modeling_gemma.eager_attention_forward
+    calls = [0]
+
+    def counting(*a, **k):
+        calls[0] += 1
+        return eager(*a, **k)
+
+    monkeypatch.setattr(modeling_gemma, "eager_attention_forward", counting)
+    for checkpointing in (False, True):
+        if checkpointing:
+            policy.model.gradient_checkpointing_enable()
+        policy.zero_grad(set_to_none=True)
+        torch.manual_seed(4)
+        calls[0] = 0
+        loss, info = policy.forward(dict(batch))
+        forward_calls.append(calls[0])
+        calls[0] = 0
+        loss.backward()
+        recomputed.append(calls[0])
+        grads.append({n: p.grad.clone() for n, p in policy.named_parameters() if p.grad is not None})
+        losses.append((float(loss.detach()), info["loss/gaze_kl"]))
+    policy.model.gradient_checkpointing_disable()
+    # the layers are run again in backward (lerobot's checkpointing recomputes each layer's attention at least
+    # once, the captured layers among them), and not at all without checkpointing
+    assert recomputed[0] == 0 and recomputed[1] >= forward_calls[1] == policy.gaze_capture.depth
+    assert losses[0] == losses[1] and losses[0][1] > 0
+    assert grads[0].keys() == grads[1].keys()
+    for name, g in grads[0].items():
+        torch.testing.assert_close(grads[1][name], g, rtol=1e-6, atol=1e-7, msg=name)
+
+
 def test_gaze_options_are_validated(tiny):
     _, _, GC, _ = _classes("pi0")
     with pytest.raises(ValueError, match="under observation"):
         GC(gaze_key="observation.gaze")
-    with pytest.raises(ValueError, match="gradient_checkpointing"):
-        GC(gradient_checkpointing=True)
+    with pytest.raises(ValueError, match="compile_model"):
+        GC(compile_model=True)
+    assert GC(gradient_checkpointing=True).gradient_checkpointing  # works: see the test below
     with pytest.raises(ValueError, match=r"layers 0\.\.1"):
         _policies("pi05", gaze_layers=[2])
 
@@ -344,6 +386,15 @@ def test_lerobot_train(kind, tiny, trained):
     assert {k: tuple(v.shape) for k, v in state.items()} == {
         k: tuple(v.shape) for k, v in base.state_dict().items()
     }
+
+
+def test_lerobot_train_with_gradient_checkpointing(tmp_path, dataset_root, train_env):
+    """The real lerobot-train with --policy.gradient_checkpointing=true and the gaze term (refused before)."""
+    args = [*_policy_args("pi05"), "--policy.gradient_checkpointing=true"]
+    log = _lerobot_train(train_env, tmp_path / "run", dataset_root, 1, *args)
+    cfg = json.loads((tmp_path / "run" / "checkpoints" / "last" / "pretrained_model" / "config.json").read_text())
+    assert cfg["gradient_checkpointing"] is True
+    assert len(_kls(log)) == 1 and all(math.isfinite(k) and k > 0 for k in _kls(log)), log[-3000:]
 
 
 def test_lerobot_train_resume_and_policy_path(tmp_path, dataset_root, train_env, trained):

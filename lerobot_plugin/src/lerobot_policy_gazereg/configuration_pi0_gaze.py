@@ -13,8 +13,10 @@ Every pi0 option is inherited unchanged; the gaze options (gaze_common.GazeOptio
                                          image tokens towards m in (0, 1] (default: off)
 
 The attention is captured by wrapping the eager attention function during the training forward, so
-`gradient_checkpointing` (which recomputes the layers in backward) and `compile_model` are refused while
-gaze_weight > 0.
+`compile_model` is refused while gaze_weight > 0. `gradient_checkpointing` works: lerobot's pi0 checkpoints
+its layers non-reentrantly, the capture runs in the first forward only and the probe keeps its own saved
+tensors, so the recomputation in backward runs the plain layers and the gradient equals the one without
+checkpointing (tests_lerobot/test_pi0_gaze.py).
 """
 
 from __future__ import annotations

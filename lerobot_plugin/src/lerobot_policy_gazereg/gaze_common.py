@@ -75,10 +75,10 @@ def validate_gaze_options(cfg: Any) -> None:
             f"gaze_key {cfg.gaze_key!r} is under observation.*, which LeRobot feeds to the policy as an "
             "input; store gaze under another prefix (e.g. gaze.point)"
         )
-    if cfg._gaze_eager_only and cfg.gaze_weight > 0 and (cfg.gradient_checkpointing or cfg.compile_model):
+    if cfg._gaze_eager_only and cfg.gaze_weight > 0 and cfg.compile_model:
         raise ValueError(
             "gaze regularization (gaze_weight > 0) captures attention in the eager forward and cannot run with "
-            "gradient_checkpointing or compile_model: set them to false or gaze_weight=0"
+            "compile_model: set it to false or gaze_weight=0"
         )
 
 
