@@ -89,7 +89,8 @@ def test_every_experiment_makes_the_gaze_prior_that_alignment_measures_against(t
 def test_glc_arm_uses_a_given_checkpoint_or_the_one_it_trains(tmp_path):
     from dataclasses import replace
 
-    from gazereg.experiment.config import arm_prior, smoke, trains_glc
+    from gazereg.experiment.arms import arm_prior, trains_glc
+    from gazereg.experiment.config import smoke
     from gazereg.gaze.sources.glc import GLCParams
     from gazereg.gaze.sources.perturbed import PerturbedParams
 

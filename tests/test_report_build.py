@@ -66,3 +66,33 @@ def test_build_report_tallies_checkpoints_and_keys_runs_by_name(tmp_path):
     md = write_report(tmp_path, report)
     assert json.loads((tmp_path / "report.json").read_text())["train"]["arms"] == list(spec().arms)
     assert md.read_text().startswith("# gazereg experiment: preset `unit`")
+
+
+def test_the_location_control_is_paired_with_the_gaze_arm(tmp_path):
+    """With the location control (issue #21 item 6) the report tests gaze against it on the same setups, next to
+    every arm against the baseline."""
+    import dataclasses
+
+    runs = [RunId(arm, 0) for arm in ("baseline", "gaze", "location")]
+    final = (
+        episodes(runs[0], [0, 0, 1, 0]) + episodes(runs[1], [1, 1, 0, 1]) + episodes(runs[2], [1, 0, 0, 0])
+    )
+    outputs = StageOutputs(
+        episodes=final,
+        checkpoint_episodes=[],
+        demos={"episodes": 3, "frames": 30},
+        glc=None,
+        final_metrics={run: {} for run in runs},
+        metrics_files={run: tmp_path / "none.jsonl" for run in runs},
+        alignment={run: {"gaze_kl": 1.0} for run in runs},
+        attention_figure="figures/attention.png",
+        date="today",
+        stage_times={},
+    )
+    report = build_report(
+        dataclasses.replace(spec(), arms=("baseline", "gaze", "location")), outputs, tmp_path
+    )
+    test = report["paired"]["gaze vs location | clean"]
+    assert test["pairs"] == 4 and test["gaze_only"] == 2 and test["location_only"] == 0
+    assert "location vs baseline | clean" in report["paired"]
+    assert not any("perturbed" in name for name in report["paired"])

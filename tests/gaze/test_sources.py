@@ -39,10 +39,12 @@ def store(tmp_path):
 
 
 def test_registry_lists_builtins_and_rejects_unknown():
-    assert {"uniform", "saliency", "perturbed", "recorded", "visuomotor", "glc"} <= set(
+    assert {"uniform", "saliency", "perturbed", "recorded", "visuomotor", "glc", "glc_folds"} <= set(
         available_gaze_sources()
     )
-    with pytest.raises(UsageError, match="unknown gaze source 'nope'; available: glc, perturbed, recorded"):
+    with pytest.raises(
+        UsageError, match="unknown gaze source 'nope'; available: glc, glc_folds, perturbed, recorded"
+    ):
         make_gaze_source("nope")
     with pytest.raises(UsageError, match="bad parameters for gaze source 'uniform'"):
         make_gaze_source("uniform", sigma=1)

@@ -60,6 +60,7 @@ from gazereg.envs.collect_config import (
     PRESETS,
     CollectConfig,
     CollectError,
+    collect_seeds,
     episode_index,
     fingerprint,
     resolve,
@@ -170,10 +171,8 @@ class Scheduler:
     def next_jobs(self, tp: TaskProgress) -> list[RolloutJob]:
         cfg = self.cfg
         jobs = []
-        while (
-            tp.done + tp.pending < tp.wanted
-            and tp.next_seed < cfg.seed_base + cfg.episodes + cfg.max_failures
-        ):
+        last = collect_seeds(cfg).stop
+        while tp.done + tp.pending < tp.wanted and tp.next_seed < last:
             seed = tp.next_seed
             tp.next_seed += 1
             index = episode_index(tp.slot, seed, cfg.seed_base)

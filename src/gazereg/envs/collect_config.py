@@ -4,6 +4,7 @@ CollectConfig(episodes=0)                            # UsageError: --episodes mu
 cfg = resolve(CollectConfig(tasks=("reach-v3",)))   # the simulator's defaults filled in, tasks canonical
 fingerprint(cfg)                                      # changes with the settings that change an episode
 episode_index(slot=1, seed=5, seed_base=0)            # 1005
+collect_seeds(CollectConfig(episodes=25, max_failures=0))   # range(0, 25): the setups it may roll out
 """
 
 from __future__ import annotations
@@ -140,6 +141,12 @@ def fingerprint(cfg: CollectConfig) -> str:
     if cfg.perturbation:  # likewise clean stores
         d["perturbation"] = cfg.perturbation
     return fingerprint_json(d)
+
+
+def collect_seeds(cfg: CollectConfig) -> range:
+    """The setup seeds a collection may roll out for each task: `episodes` from `seed_base` on and up to
+    `max_failures` more that replace failed rollouts (the Scheduler tries them in this order and no others)."""
+    return range(cfg.seed_base, cfg.seed_base + cfg.episodes + cfg.max_failures)
 
 
 def episode_index(slot: int, seed: int, seed_base: int) -> int:

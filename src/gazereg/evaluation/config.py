@@ -3,6 +3,7 @@
 cfg = presets()["quick"]()                       # 10 episodes per task: clean, dim:0.7, gaussian_noise:0.5
 arms = parse_checkpoints(("baseline=runs/a/final", "runs/b/final"))   # {"baseline": ..., "final": ...}
 EvalConfig(episodes=0)                           # UsageError: --episodes must be an integer >= 1, got 0
+EvalConfig(episodes=25, robustness_episodes=10).seeds("dim:0.7")   # range(1000, 1010): the first clean setups
 """
 
 from __future__ import annotations
@@ -56,6 +57,9 @@ class EvalConfig(Validated):
     env: Literal["metaworld", "libero"] = "metaworld"
     """simulator: metaworld (tasks are Meta-World task names) or libero (tasks are suites such as
     libero_spatial or single tasks such as libero_spatial/3; needs the LIBERO extra: scripts/libero_env.sh)"""
+    robustness_episodes: int | None = None
+    """episodes per task under each condition but clean: the first of the clean setups (seeds seed_start ..),
+    so every perturbed episode pairs with a clean one on its setup; None = `episodes`"""
 
     def validate(self, prefix: str) -> None:
         """UsageError naming the first bad option (`prefix`: "" for `gazereg eval`, "eval." in an experiment)."""
@@ -79,6 +83,17 @@ class EvalConfig(Validated):
             simulator(self.env)
         except UnknownSimulator as e:
             raise UsageError(f"{option(prefix + 'env')}: {e}") from None
+        if self.robustness_episodes is not None:
+            require_number(
+                self.robustness_episodes, prefix + "robustness_episodes", 1, self.episodes, integer=True
+            )
+
+    def seeds(self, condition: str) -> range:
+        """The setup seeds every task is evaluated on under `condition` (each arm on the same ones)."""
+        n = self.episodes
+        if condition != "clean" and self.robustness_episodes is not None:
+            n = self.robustness_episodes
+        return range(self.seed_start, self.seed_start + n)
 
 
 def presets() -> dict[str, Callable[[], EvalConfig]]:

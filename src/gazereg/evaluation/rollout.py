@@ -164,17 +164,18 @@ class RolloutWorker:
 
 
 def make_jobs(cfg: EvalConfig, arms: dict[str, Path]) -> list[Job]:
+    """Every rollout: each arm on each task's setups under each condition (`EvalConfig.seeds`)."""
     jobs = []
     for arm, ckpt in arms.items():
         for task in cfg.tasks:
             for condition in cfg.conditions:
-                for i in range(cfg.episodes):
+                for i, seed in enumerate(cfg.seeds(condition)):
                     video = None
                     if i < cfg.videos:
                         tag = condition.replace(":", "").replace("+", "_")
-                        name = f"{arm}__{task}__{tag}__seed{cfg.seed_start + i}".replace("/", "-")
+                        name = f"{arm}__{task}__{tag}__seed{seed}".replace("/", "-")
                         video = str(Path(cfg.out) / "videos" / f"{name}.gif")
-                    jobs.append(Job(arm, str(ckpt), task, condition, cfg.seed_start + i, video))
+                    jobs.append(Job(arm, str(ckpt), task, condition, seed, video))
     return jobs
 
 
@@ -235,6 +236,7 @@ def evaluate(cfg: EvalConfig, progress: bool = True) -> dict[str, Any]:
         "config": to_dict(cfg),
         "checkpoints": {k: str(v) for k, v in arms.items()},
         "seeds": {t: list(range(cfg.seed_start, cfg.seed_start + cfg.episodes)) for t in cfg.tasks},
+        "condition_seeds": {c: list(cfg.seeds(c)) for c in cfg.conditions},
         "episodes": records,
         "summary": summarize(records),
     }

@@ -16,7 +16,7 @@ from gazereg.evaluation.stats import mcnemar_exact, wilson
 
 def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     """Per arm, condition and task: successes, n, rate, Wilson 95% interval, mean length; pooled over tasks;
-    each condition's drop from clean; paired exact tests between arms on the shared seeds."""
+    each condition's drop from clean (on the condition's setups); paired exact tests between arms on the shared seeds."""
     by: dict[tuple[str, str, str], list[dict[str, Any]]] = defaultdict(list)
     for r in records:
         by[(r["arm"], r["condition"], r["task"])].append(r)
@@ -47,9 +47,13 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
             entry = {"pooled": cell(rs), "tasks": {t: cell(by[(arm, cond, t)]) for t in tasks}}
             out["arms"][arm][cond] = entry
         if "clean" in out["arms"][arm]:
-            clean = out["arms"][arm]["clean"]["pooled"]["rate"]
+            clean = {(r["task"], r["seed"]): bool(r["success"]) for t in tasks for r in by[(arm, "clean", t)]}
             for cond in conditions:
-                out["arms"][arm][cond]["drop_from_clean"] = clean - out["arms"][arm][cond]["pooled"]["rate"]
+                # the clean rate on this condition's setups (fewer than clean's with robustness_episodes)
+                keys = [(r["task"], r["seed"]) for t in tasks for r in by[(arm, cond, t)]]
+                same = [clean[k] for k in keys if k in clean]
+                rate = sum(same) / len(same) if same else float("nan")
+                out["arms"][arm][cond]["drop_from_clean"] = rate - out["arms"][arm][cond]["pooled"]["rate"]
 
     def outcomes(arm: str, cond: str) -> list[bool]:
         rs = sorted((r for t in tasks for r in by[(arm, cond, t)]), key=lambda r: (r["task"], r["seed"]))

@@ -1,15 +1,18 @@
 """`gazereg experiment`: demos -> priors -> training -> evaluation -> report, stage by stage and resumable.
 
-`config` holds the configuration and its presets, `runner` the stages; see `gazereg.experiment.runner`.
+`config` holds the configuration and its presets, `arms` what each arm trains on, `demos` and `glc` the
+demos stage's collections and the glc arm's GLC, `records` the saved config and the report's spec, `runner` the
+stages; see `gazereg.experiment.runner`.
 Runs are named by `gazereg.report.ids.RunId` (arm, training seed, step).
 """
 
+from gazereg.experiment.arms import PriorSpec, arm_prior
 from gazereg.experiment.config import (
     PRESETS,
     ExperimentConfig,
-    PriorSpec,
-    arm_prior,
     full,
+    libero,
+    libero_smoke,
     paper,
     quick,
     smoke,
@@ -24,6 +27,8 @@ __all__ = [
     "PriorSpec",
     "arm_prior",
     "full",
+    "libero",
+    "libero_smoke",
     "main",
     "paper",
     "quick",

@@ -1,4 +1,4 @@
-"""The experiment's configuration: what an arm is, and the named presets (smoke, quick, paper, full).
+"""The experiment's configuration and its named presets (smoke, quick, paper, full, libero, libero_smoke).
 
 An `ExperimentConfig` checks its options when it is built, its nested `train` and `eval` configs theirs
 (`gazereg.runtime.config.Validated`): a bad value is a UsageError naming the option as typed, e.g.
@@ -11,16 +11,15 @@ import dataclasses
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Literal
 
+from gazereg.envs.base import UnknownSimulator, simulator
 from gazereg.evaluation.config import ROBUSTNESS_CONDITIONS, EvalConfig
+from gazereg.evaluation.config import presets as eval_presets
 from gazereg.gaze.aggregation import AggregationConfig
-from gazereg.gaze.sources import GazeSourceParams
 from gazereg.gaze.sources.glc import GLCParams
-from gazereg.gaze.sources.perturbed import PerturbedParams
-from gazereg.gaze.sources.simple import SaliencyParams, UniformParams
 from gazereg.gaze.sources.visuomotor import VisuomotorParams
-from gazereg.report.build import ReportSpec
-from gazereg.runtime.config import Validated, option, require_entries, require_number, to_dict
+from gazereg.runtime.config import Validated, option, require_entries, require_number
 from gazereg.runtime.errors import UsageError
 from gazereg.training.config import DataConfig, GazeConfig, OptimConfig, TrainConfig
 from gazereg.training.config import quick as quick_train
@@ -30,11 +29,19 @@ from gazereg.training.config import smoke as smoke_train
 @dataclass(frozen=True)
 class ExperimentConfig(Validated):
     out: Path = Path("runs/experiment")
+    env: Literal["metaworld", "libero"] = "metaworld"
+    """the simulator of the demonstrations and the evaluation (`eval.env` must name the same); libero runs in
+    the LIBERO venv (scripts/libero_env.sh)"""
     tasks: tuple[str, ...] = ("reach-v3", "button-press-topdown-v3")
     camera: str = "corner2"
     image_size: int = 96
+    """side of the square camera images the demonstrations store (pixels)"""
     demos_per_task: int = 30
     """expert demonstrations per task, on setups 0..demos_per_task-1"""
+    demo_max_failures: int = 20
+    """extra setups per task (seeds demos_per_task ..) tried in place of the expert's failed rollouts; with 0
+    the demonstrations stay on setups 0..demos_per_task-1 and a task keeps fewer where the expert fails (the
+    demos stage and the report give the count per task)"""
     heldout_per_task: int = 3
     """expert episodes per task on unseen setups, for attention-gaze alignment only"""
     collect_workers: int = 2
@@ -47,6 +54,13 @@ class ExperimentConfig(Validated):
     glc_demos_per_task: int = 20
     """expert demonstrations per task on setups of their own (never trained on or evaluated) that train GLC"""
     glc_steps: int = 600
+    """optimizer steps of each GLC the experiment trains"""
+    glc_folds: tuple[tuple[str, ...], ...] = ()
+    """cross-fitted GLC: groups of `tasks` (each task in one); the GLC of a group trains on the training
+    demonstrations of every other group's tasks and predicts this group's glc priors, so no episode's prior
+    comes from a GLC that saw its task's gaze (no GLC demonstrations are collected); empty = one GLC trained on
+    the GLC demonstrations of every task (`glc_demos_per_task`). On the command line a preset's groups are
+    changed one by one: --glc-folds.0 TASK ... --glc-folds.1 TASK ..."""
     prior_size: tuple[int, int] = (64, 64)
     aggregation: AggregationConfig = field(default_factory=lambda: AggregationConfig(past=2, future=2))
     arms: tuple[str, ...] = ("baseline", "gaze", "perturbed")
@@ -99,8 +113,42 @@ class ExperimentConfig(Validated):
         for side in self.prior_size:
             require_number(side, prefix + "prior_size", 1, integer=True)
         require_number(self.threshold, prefix + "threshold", 0, 1, open_low=True, open_high=True)
+        require_number(self.demo_max_failures, prefix + "demo_max_failures", 0, integer=True)
         if not self.camera:
             raise UsageError(f"{option(prefix + 'camera')} is empty: name the camera")
+        try:
+            simulator(self.env)
+        except UnknownSimulator as e:
+            raise UsageError(f"{option(prefix + 'env')}: {e}") from None
+        if self.eval.env != self.env:
+            raise UsageError(
+                f"{option(prefix + 'eval.env')} {self.eval.env} differs from {option(prefix + 'env')} "
+                f"{self.env}: the evaluation runs in the demonstrations' simulator; set both"
+            )
+        self.validate_folds(prefix)
+
+    def validate_folds(self, prefix: str) -> None:
+        """`glc_folds`: at least two non-empty groups that split `tasks`, and no GLC checkpoint given."""
+        if not self.glc_folds:
+            return
+        flag = option(prefix + "glc_folds")
+        listed = [t for fold in self.glc_folds for t in fold]
+        if len(self.glc_folds) < 2 or not all(self.glc_folds):
+            raise UsageError(f"{flag} takes at least two non-empty groups of tasks, got {self.glc_folds}")
+        require_entries(listed, prefix + "glc_folds", show=str)
+        if set(listed) != set(self.tasks):
+            unknown, missing = (
+                sorted(set(listed) - set(self.tasks)),
+                [t for t in self.tasks if t not in listed],
+            )
+            raise UsageError(
+                f"{flag} must split {option(prefix + 'tasks')} into groups, each task in one: "
+                f"not tasks: {unknown or 'none'}; in no group: {missing or 'none'}"
+            )
+        if self.glc.checkpoint is not None:
+            raise UsageError(
+                f"{flag} trains a GLC per group; {option(prefix + 'glc.checkpoint')} gives one: choose one"
+            )
 
 
 EXECUTION_KEYS = (
@@ -116,73 +164,9 @@ EXECUTION_KEYS = (
 """config keys that change how a run executes, not what it measures: a resumed run may change them"""
 
 
-def trains_glc(cfg: ExperimentConfig) -> bool:
-    """Whether the experiment trains its own GLC: the glc arm runs and no checkpoint was given."""
-    return "glc" in cfg.arms and cfg.glc.checkpoint is None
-
-
-def glc_dir(cfg: ExperimentConfig) -> Path:
-    return Path(cfg.out) / "glc"
-
-
-@dataclass(frozen=True)
-class PriorSpec:
-    """A prior an arm trains on: its name in the episode store and the gaze source that makes it."""
-
-    name: str
-    source: GazeSourceParams
-
-
-ARMS = ("baseline", "gaze", "perturbed", "blobs", "other_episode", "saliency", "uniform", "glc")
-
-
-def gaze_prior(cfg: ExperimentConfig) -> PriorSpec:
-    """The gaze source's own prior: the gaze arm trains on it, the perturbed controls are made from it and
-    every arm's attention is measured against it."""
-    return PriorSpec(cfg.gaze.name, cfg.gaze)
-
-
-def arm_prior(arm: str, cfg: ExperimentConfig) -> PriorSpec | None:
-    """The prior `arm` trains on; None for the baseline."""
-    base = cfg.gaze.name
-    if arm == "baseline":
-        return None
-    if arm == "gaze":
-        return gaze_prior(cfg)
-    if arm == "perturbed":
-        return PriorSpec(f"{base}-shuffled", PerturbedParams(mode="shuffle", base=base))
-    if arm == "blobs":
-        return PriorSpec("blobs", PerturbedParams(mode="blobs"))
-    if arm == "other_episode":
-        return PriorSpec(f"{base}-other-episode", PerturbedParams(mode="other_episode", base=base))
-    if arm == "saliency":
-        return PriorSpec("saliency", SaliencyParams())
-    if arm == "uniform":
-        return PriorSpec("uniform", UniformParams())
-    if arm == "glc":
-        trained = replace(cfg.glc, checkpoint=glc_dir(cfg) / "final")
-        return PriorSpec("glc", trained if trains_glc(cfg) else cfg.glc)
-    raise KeyError(f"unknown arm {arm!r}; choose from {sorted(ARMS)}")
-
-
-def report_spec(cfg: ExperimentConfig, preset: str) -> ReportSpec:
-    """What the report says the experiment ran."""
-    return ReportSpec(
-        preset=preset,
-        tasks=cfg.tasks,
-        arms=cfg.arms,
-        train_seeds=cfg.train_seeds,
-        train_steps=cfg.train.steps,
-        batch_size=cfg.train.batch_size,
-        gaze_weight=cfg.train.gaze.weight,
-        gaze_layers=tuple(cfg.train.gaze.layers),
-        eval_episodes=cfg.eval.episodes,
-        eval_conditions=tuple(cfg.eval.conditions),
-        eval_seed_start=cfg.eval.seed_start,
-        convergence_episodes=cfg.convergence_episodes,
-        threshold=cfg.threshold,
-        config=to_dict(cfg),
-    )
+ARMS = ("baseline", "gaze", "perturbed", "blobs", "other_episode", "saliency", "uniform", "glc", "location")
+"""every arm an experiment can train; `gazereg.experiment.arms.arm_prior` gives the prior each trains on and
+`gazereg.experiment.arms.gaze_target` what its gaze term supervises"""
 
 
 # ----- presets ------------------------------------------------------------------------------------------------
@@ -288,4 +272,97 @@ def full() -> ExperimentConfig:
     )
 
 
-PRESETS = {"quick": quick, "smoke": smoke, "paper": paper, "full": full}
+def libero() -> ExperimentConfig:
+    """LIBERO-Spatial, the paper's benchmark, on 2 CPU cores in at most about 2 h 20 min (`bash
+    scripts/libero_env.sh gazereg experiment --preset libero`): baseline, gaze (visuomotor), cross-fitted glc
+    and perturbed gaze, one training seed, its 10 tasks from the agentview camera at 128 px (patches of 16 px:
+    the 8 x 8 grid of the other presets), evaluated on initial states 25..49 (`gazereg eval --preset libero`,
+    220 steps) clean, and on the first 5 of them per task dimmed (`dim:0.7`) and with sensor noise
+    (`gaussian_noise:0.5`): 250 pairs per arm clean, 50 per perturbed condition.
+
+    Demonstrations: the expert on initial states 0..24 only (`demo_max_failures=0`: a failure is not replaced
+    by a state the evaluation uses); a task keeps fewer where the expert fails, and the report counts them.
+    The expert's longest rollout on states 0..24 of tasks 0, 3, 5 and 8 was 164 steps (107, 164, 110, 113;
+    all 100 succeeded within 400), so 220 steps leave it a margin of 56. glc: two fold GLCs (tasks 0-4 and
+    5-9), each trained 300 steps on the other half's demonstrations, so no task's glc prior comes from a GLC
+    that saw its gaze (a 30-step GLC already beat the centre prior within tasks 0 and 5: F1 0.66 vs 0.56).
+
+    Time on 2 cores (minutes; per-item costs measured here with at most one core taken by other jobs):
+    demos (250 + 20 held-out) x 4.9 s (2 workers; one worker kept a demo every 4.6 s) = 22; priors: GLC
+    training 2 x 300 steps x 1.8 s (1 thread) = 18, GLC maps 29,000 frames / 49 frames/s (1 thread) = 10, the
+    folds' scoring (every 5th episode of the tasks each predicts) 2, visuomotor and shuffled priors 2 = 32;
+    training 4 runs x 6,000 steps x 0.13 s (1 thread, bf16, batch 32; 0.12 s at 96 px) / 2 at once = 26;
+    evaluation (4 arms x 250 clean + 2 x 4 x 50 perturbed) = 1,400 episodes x at most 2.5 s (a failing one:
+    220 steps on 2 workers) = 58; alignment and report 2. Total at most ~140. Success-versus-steps is not
+    evaluated (`convergence_points=1`): a curve would cost another evaluation per checkpoint."""
+    ev = eval_presets()["libero"]()
+    tasks = ev.tasks
+    t = quick_train()
+    return ExperimentConfig(
+        out=Path("runs/libero"),
+        env="libero",
+        tasks=tasks,
+        camera="agentview_rgb",
+        image_size=128,
+        demos_per_task=ev.seed_start,  # the initial states below the evaluation's first
+        demo_max_failures=0,
+        heldout_per_task=2,
+        arms=("baseline", "gaze", "glc", "perturbed"),
+        glc_steps=300,
+        glc_folds=(tasks[: len(tasks) // 2], tasks[len(tasks) // 2 :]),
+        train=replace(
+            t,
+            steps=6000,
+            batch_size=32,
+            policy=dataclasses.replace(t.policy, image_hw=(128, 128), patch_size=16),
+        ),
+        parallel=2,
+        eval=replace(
+            ev, conditions=("clean", "dim:0.7", "gaussian_noise:0.5"), robustness_episodes=5, videos=1
+        ),
+        convergence_points=1,
+        convergence_episodes=ev.episodes,
+    )
+
+
+def libero_smoke() -> ExperimentConfig:
+    """Every stage of the `libero` preset at toy size (the slow test tests/envs/test_libero_experiment.py, in
+    the LIBERO venv): 2 tasks, 2 demonstrations each, 4 training steps, 2 evaluation episodes of 10 steps."""
+    ev = eval_presets()["libero"]()
+    tasks = ev.tasks[:2]
+    return replace(
+        libero(),
+        out=Path("runs/libero_smoke"),
+        tasks=tasks,
+        image_size=48,
+        demos_per_task=2,
+        heldout_per_task=1,
+        collect_workers=1,
+        prior_size=(32, 32),
+        glc=GLCParams(hop=8),
+        glc_steps=2,
+        glc_folds=((tasks[0],), (tasks[1],)),
+        train=replace(smoke_train(), steps=4, gaze=GazeConfig(weight=0.1)),
+        parallel=1,
+        eval=replace(
+            ev,
+            tasks=tasks,
+            episodes=2,
+            robustness_episodes=1,
+            max_steps=10,
+            workers=1,
+            conditions=("clean", "dim:0.7", "gaussian_noise:0.5"),
+        ),
+        convergence_episodes=1,
+        figure_frames=2,
+    )
+
+
+PRESETS = {
+    "quick": quick,
+    "smoke": smoke,
+    "paper": paper,
+    "full": full,
+    "libero": libero,
+    "libero_smoke": libero_smoke,
+}

@@ -4,19 +4,24 @@
     gazereg experiment --preset smoke            # CI: the same code, tiny sizes
     gazereg experiment --preset paper            # powered: 3 arms x 3 training seeds, 50 episodes per task and condition
     gazereg experiment --preset full             # every ablation arm, 5 tasks, 128 px: for a many-core GPU machine
+    bash scripts/libero_env.sh gazereg experiment --preset libero   # LIBERO-Spatial's 10 tasks, 4 arms, ~2.3 h
 
 Stages (each writes into `out/` and a marker `out/stages/<name>.json`; a rerun skips finished stages, so a
 killed run loses at most the stage it was in; training resumes from its last checkpoint and evaluation
 from its episode log, episodes.jsonl):
   demos      scripted experts on training setups (seeds 0..demos_per_task-1) + held-out setups for alignment
-  priors     one prior per gaze source an arm needs (the gaze source, and its perturbed controls)
+             (`gazereg.experiment.demos`)
+  priors     one prior per gaze source an arm needs (the gaze source, and its perturbed controls); for the glc
+             arm first its GLC, or one per fold (`gazereg.experiment.glc`)
   train      every arm x training seed with the same budget; arms differ only in their gaze prior
   eval       final checkpoints on shared unseen setups, clean and perturbed (lighting, sensor noise)
   converge   intermediate checkpoints, clean, for success-versus-steps curves
   align      attention vs gaze on held-out frames; the attention figure
   report     report.json, report.md, figures
 Arms: baseline (no gaze term), gaze (the gaze source), perturbed (its patches shuffled), blobs (random
-blobs), other_episode (another episode's gaze), saliency, uniform, glc.
+blobs), other_episode (another episode's gaze), saliency, uniform, glc, location (the gaze prior predicted by
+a training-only head from the image features instead of imposed on attention: the control for the location
+information the prior carries).
 """
 
 from __future__ import annotations
@@ -34,32 +39,26 @@ from pathlib import Path
 from typing import Any
 
 from gazereg.data.store import EpisodeStore
+from gazereg.envs.base import make_collector
 from gazereg.envs.collect import collect
-from gazereg.envs.collect_config import CollectConfig
 from gazereg.evaluation.alignment import alignment_report, attention_maps
+from gazereg.evaluation.config import EvalConfig
 from gazereg.evaluation.rollout import evaluate
-from gazereg.experiment.config import (
-    EXECUTION_KEYS,
-    PRESETS,
-    ExperimentConfig,
-    PriorSpec,
-    arm_prior,
-    gaze_prior,
-    glc_dir,
-    report_spec,
-    trains_glc,
-)
+from gazereg.experiment.arms import PriorSpec, arm_prior, gaze_prior, gaze_target, trains_glc
+from gazereg.experiment.config import EXECUTION_KEYS, PRESETS, ExperimentConfig
+from gazereg.experiment.demos import collection_result, demo_collections, demo_stores
+from gazereg.experiment.glc import train_glc, train_glc_folds
+from gazereg.experiment.records import report_spec, with_added_keys
 from gazereg.gaze.priors import PriorsConfig, make_priors
 from gazereg.policies import load_policy
 from gazereg.report.build import StageOutputs, build_report, write_report
 from gazereg.report.figures import attention_panels, plot_attention
 from gazereg.report.ids import RunId
 from gazereg.runtime.clock import ResumableClock
-from gazereg.runtime.config import check_same_config, parse, save_config, split_preset
+from gazereg.runtime.config import check_same_config, parse, save_config, split_preset, to_dict
 from gazereg.runtime.io import atomic_write_json, sweep_stale_temps
 from gazereg.training.checkpoint import latest_checkpoint, list_checkpoints
 from gazereg.training.config import TrainConfig
-from gazereg.training.glc_store import GLCStoreTrainConfig, train_glc_on_store
 from gazereg.training.loop import train
 
 log = logging.getLogger(__name__)
@@ -72,9 +71,8 @@ class Experiment:
     def __init__(self, cfg: ExperimentConfig, preset: str = "custom"):
         self.cfg, self.preset = cfg, preset
         self.out = Path(cfg.out)
-        self.store = self.out / "demos"
-        self.heldout = self.out / "heldout"
-        self.glc_store = self.out / "glc_demos"
+        stores = demo_stores(self.out)
+        self.store, self.heldout, self.glc_store = stores["train"], stores["heldout"], stores["glc"]
         self.times: dict[str, float] = {}
 
     # ----- bookkeeping ------------------------------------------------------------------------------------
@@ -91,12 +89,13 @@ class Experiment:
 
     def check_resumable(self) -> None:
         """Refuse to continue a run folder whose finished stages were made with another configuration: they
-        would be skipped and reported as this configuration's results."""
+        would be skipped and reported as this configuration's results. A key added to the configuration
+        since the folder was made counts as its default (`records.with_added_keys`)."""
         saved = self.out / "config.json"
         if not saved.exists():
             return
         check_same_config(
-            json.loads(saved.read_text()),
+            with_added_keys(json.loads(saved.read_text()), to_dict(ExperimentConfig()), to_dict(self.cfg)),
             self.cfg,
             ("out", *EXECUTION_KEYS),
             self.out,
@@ -127,42 +126,29 @@ class Experiment:
 
     # ----- stages -------------------------------------------------------------------------------------------
     def stage_demos(self, _: dict[str, Any]) -> dict[str, Any]:
-        c = self.cfg
-        common = dict(
-            tasks=c.tasks,
-            cameras=(c.camera,),
-            image_size=c.image_size,
-            workers=c.collect_workers,
-            gl_backend=c.eval.gl_backend or "",
-        )
+        """Every collection of `demos.demo_collections`; the training demonstrations may be fewer than wanted
+        per task (the expert failed on some allowed setup), the others not (`demos.collection_result`)."""
         out = {}
-        sets = [
-            ("train", self.store, c.demos_per_task, 0),
-            ("heldout", self.heldout, c.heldout_per_task, c.eval.seed_start + 500),
-        ]
-        if trains_glc(c):
-            sets.append(("glc", self.glc_store, c.glc_demos_per_task, c.eval.seed_start + 700))
-        for name, store, n, seed_base in sets:
-            report = collect(CollectConfig(out=store, episodes=n, seed_base=seed_base, **common))
-            if not report.complete:
-                raise RuntimeError(
-                    f"demo collection into {store} did not reach {n} successful episodes per task: {report.tasks}"
-                )
-            st = EpisodeStore(store)
-            out[name] = {
-                "episodes": len(st),
-                "frames": sum(st.meta(i)["length"] for i in st.indices()),
-                "seconds": report.seconds,
-            }
+        for name, ccfg in demo_collections(self.cfg, self.out).items():
+            report = collect(ccfg)
+            st = EpisodeStore(ccfg.out)
+            frames = sum(st.meta(i)["length"] for i in st.indices())
+            out[name] = collection_result(name, report, len(st), frames)
         return out
+
+    def task_names(self) -> dict[str, str]:
+        """Each task as the episode store names its episodes (LIBERO: the task's name in its suite)."""
+        collector = make_collector(self.cfg.env)
+        return {task: collector.episode_task(task) for task in self.cfg.tasks}
 
     def priors_needed(self) -> list[PriorSpec]:
         """Every prior the arms train on, and always the gaze source's own: the perturbed controls are made
         from it and the align stage measures every arm against it (a baseline-only experiment too)."""
+        names = self.task_names() if self.cfg.glc_folds and "glc" in self.cfg.arms else None
         gaze = gaze_prior(self.cfg)
         needed = {gaze.name: gaze}
         for arm in self.cfg.arms:
-            prior = arm_prior(arm, self.cfg)
+            prior = arm_prior(arm, self.cfg, names)
             if prior is not None:
                 needed[prior.name] = prior
         return list(needed.values())
@@ -170,7 +156,13 @@ class Experiment:
     def stage_priors(self, _: dict[str, Any]) -> dict[str, Any]:
         c = self.cfg
         made = []
-        glc = self.train_glc() if trains_glc(c) else None
+        glc = None
+        if trains_glc(c):  # the glc arm's GLC first: its priors are made with it
+            glc = (
+                train_glc_folds(c, self.store, self.task_names())
+                if c.glc_folds
+                else train_glc(c, self.glc_store)
+            )
         for store in (self.store, self.heldout):
             for prior in self.priors_needed():
                 make_priors(
@@ -185,34 +177,6 @@ class Experiment:
                 )
                 made.append(f"{store.name}/{prior.name}")
         return {"priors": made, "glc": glc}
-
-    def train_glc(self) -> dict[str, Any]:
-        """Train the small GLC on the gaze source's points of the GLC demonstrations (resumes; every 5th
-        episode per task held out for its F1/AUC against a centre prior), for the glc arm's priors."""
-        c = self.cfg
-        base = GLCStoreTrainConfig()
-        trained = train_glc_on_store(
-            replace(
-                base,
-                store=self.glc_store,
-                camera=c.camera,
-                gaze=c.gaze,
-                out=glc_dir(c),
-                optim=replace(base.optim, steps=c.glc_steps),
-            )
-        )
-        out: dict[str, Any] = {"checkpoint": str(glc_dir(c) / "final"), "steps": trained.steps, "eval": None}
-        if trained.eval_path is not None:
-            rep = json.loads(trained.eval_path.read_text())
-            out["eval"] = {
-                "heldout": rep["episodes"],
-                **{
-                    f"{name}_{metric}": rep["scores"]["all_valid"][name][metric]
-                    for name in ("glc", "centre_prior", "uniform")
-                    for metric in ("f1", "auc")
-                },
-            }
-        return out
 
     def run_dirs(self) -> dict[RunId, Path]:
         """Every run (arm x training seed) and its training folder."""
@@ -237,7 +201,12 @@ class Experiment:
             progress=False,
             threads=c.threads_per_run,
             data=replace(c.train.data, store=self.store),
-            gaze=replace(c.train.gaze, prior=prior_name, camera=c.camera if prior_name else None),
+            gaze=replace(
+                c.train.gaze,
+                prior=prior_name,
+                camera=c.camera if prior_name else None,
+                target=gaze_target(run.arm),
+            ),
         )
 
     def stage_train(self, _: dict[str, Any]) -> dict[str, Any]:
@@ -252,19 +221,23 @@ class Experiment:
     def final_checkpoints(self, results: dict[str, Any]) -> dict[RunId, str]:
         return {RunId.parse(name): r["checkpoint"] for name, r in results["train"]["runs"].items()}
 
-    def evaluate_checkpoints(
-        self, checkpoints: dict[RunId, str], folder: str, **eval_changes: Any
-    ) -> dict[str, Any]:
-        """Evaluate `checkpoints` (each named by its run) into `out/folder`; `eval_changes` override the
-        experiment's evaluation settings."""
-        ecfg = replace(
+    def eval_config(self, folder: str, checkpoints: dict[RunId, str], **eval_changes: Any) -> EvalConfig:
+        """The evaluation of `checkpoints` (each named by its run) into `out/folder`: the experiment's settings
+        on its tasks in its simulator, with `eval_changes`."""
+        return replace(
             self.cfg.eval,
+            env=self.cfg.env,
             tasks=self.cfg.tasks,
             out=self.out / folder,
             checkpoints=tuple(f"{run}={path}" for run, path in checkpoints.items()),
             **eval_changes,
         )
-        info = evaluate(ecfg)
+
+    def evaluate_checkpoints(
+        self, checkpoints: dict[RunId, str], folder: str, **eval_changes: Any
+    ) -> dict[str, Any]:
+        """Evaluate `checkpoints` (each named by its run) into `out/folder` (`eval_config`)."""
+        info = evaluate(self.eval_config(folder, checkpoints, **eval_changes))
         return {"eval_info": str(self.out / folder / "eval_info.json"), "episodes": len(info["episodes"])}
 
     def stage_eval(self, results: dict[str, Any]) -> dict[str, Any]:
@@ -279,7 +252,12 @@ class Experiment:
         if not ckpts:
             return {"eval_info": None, "episodes": 0}
         return self.evaluate_checkpoints(
-            ckpts, "converge", conditions=("clean",), videos=0, episodes=self.cfg.convergence_episodes
+            ckpts,
+            "converge",
+            conditions=("clean",),
+            videos=0,
+            episodes=self.cfg.convergence_episodes,
+            robustness_episodes=None,
         )
 
     def stage_align(self, results: dict[str, Any]) -> dict[str, Any]:

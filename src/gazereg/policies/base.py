@@ -194,6 +194,16 @@ class Policy(nn.Module, ABC):
         (row-major over `geometry(camera)`'s grid) on `resolve_layers(layers)`; the policy's attention code
         calls `gazereg.attention.tap` for these layers."""
 
+    def layer_module(self, layer: int) -> nn.Module:
+        """The module computing transformer layer `layer` (a `resolve_layers` id) for every token: its output
+        is the (B, T, D) token features after that layer (or a tuple that starts with them), positions as in
+        `gaze_probe_spec`'s keys. Optional: only the location control (`--gaze.target features`,
+        gazereg.training.location) reads it; the default says the policy does not expose its layers."""
+        raise NotImplementedError(
+            f"the {self.name} policy does not expose its layers' token features (Policy.layer_module), which "
+            "--gaze.target features reads"
+        )
+
     # ----- training and inference --------------------------------------------------------------------------
     @abstractmethod
     def forward(

@@ -1,6 +1,6 @@
 """The experiment's report: run identities (`ids`), tables and tests (`tables`), figures (`figures`), the
-assembled report (`build`), report.md and results blocks (`markdown`). Every number comes from the experiment's
-own records."""
+assembled report (`build`), report.md and results blocks (`markdown`, with `sections`). Every number comes from
+the experiment's own records."""
 
 from gazereg.report.build import ReportSpec, StageOutputs, build_report, write_report
 from gazereg.report.figures import plot_attention, plot_convergence, plot_success

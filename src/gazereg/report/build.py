@@ -59,6 +59,8 @@ class ReportSpec:
     """success rate whose first crossing is reported as 'steps to threshold'"""
     config: dict[str, Any]
     """the resolved configuration, stored in report.json as it is"""
+    eval_robustness_episodes: int | None = None
+    """setups per task under each condition but clean (the first of the clean ones); None: eval_episodes"""
 
 
 @dataclass(frozen=True)
@@ -70,9 +72,11 @@ class StageOutputs:
     checkpoint_episodes: list[Record]
     """the intermediate checkpoints' clean evaluation (their runs name their step); empty when none"""
     demos: dict[str, Any]
-    """the training demonstrations: {"episodes", "frames"}"""
+    """the training demonstrations: {"episodes", "frames"} and, where recorded, {"wanted": per task,
+    "per_task": {task: episodes}}"""
     glc: dict[str, Any] | None
-    """the GLC the experiment trained for the glc arm (checkpoint, steps, eval), or None"""
+    """the GLC the experiment trained for the glc arm (checkpoint, steps, eval; or "folds", one such record per
+    cross-fitted GLC with the tasks it "trained_on" and "predicts"), or None"""
     final_metrics: dict[RunId, dict[str, float]]
     """each run's metrics at its last training step"""
     metrics_files: dict[RunId, Path]
@@ -90,9 +94,16 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
     """report.json's content; draws the success and convergence figures into `out/figures`."""
     episodes = outputs.episodes
     success = success_table(episodes)
-    # Each arm against the baseline, and the gaze arm against its own perturbed-gaze control.
-    control = gaze_and_control(episodes, spec.arms)
-    paired = {**paired_tests(episodes), **paired_tests(control, "perturbed")}
+    # Each arm against the baseline, and the gaze arm against each of its controls it ran with.
+    controls = {c: gaze_and_control(episodes, spec.arms, c) for c in GAZE_CONTROLS}
+    controls = {c: records for c, records in controls.items() if records}
+    paired = paired_tests(episodes)
+    distance = paired_distance_tests(episodes)
+    verdicts = verdict(success, paired=paired)
+    for control, records in controls.items():
+        paired.update(paired_tests(records, control))
+        distance.update(paired_distance_tests(records, reference=control))
+        verdicts += verdict(success_table(records), control, paired)
     conv = convergence(checkpoint_tally(_convergence_points(spec, outputs)), spec.threshold)
     figs = out / "figures"
     figs.mkdir(parents=True, exist_ok=True)
@@ -103,15 +114,8 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
         "success": success,
         "paired": paired,
         "per_seed": per_seed_table(episodes) if len(spec.train_seeds) > 1 else None,
-        "distance": {
-            "table": distance_table(episodes),
-            "paired": {
-                **paired_distance_tests(episodes),
-                **paired_distance_tests(control, reference="perturbed"),
-            },
-        },
-        "verdict": verdict(success, paired=paired)
-        + (verdict(success_table(control), "perturbed", paired) if control else []),
+        "distance": {"table": distance_table(episodes), "paired": distance},
+        "verdict": verdicts,
         "convergence": conv,
         "glc": outputs.glc,
         "val_loss": {str(run): m.get("val/loss_action") for run, m in outputs.final_metrics.items()},
@@ -144,7 +148,11 @@ def _header(spec: ReportSpec, outputs: StageOutputs) -> dict[str, Any]:
         "wall_time_s": sum(outputs.stage_times.values()),
         "stage_times_s": dict(outputs.stage_times),
         "tasks": list(spec.tasks),
-        "demos": {"episodes": outputs.demos.get("episodes"), "frames": outputs.demos.get("frames")},
+        "demos": {
+            "episodes": outputs.demos.get("episodes"),
+            "frames": outputs.demos.get("frames"),
+            **{k: outputs.demos[k] for k in ("wanted", "per_task") if k in outputs.demos},
+        },
         "train": {
             "steps": spec.train_steps,
             "batch_size": spec.batch_size,
@@ -157,16 +165,27 @@ def _header(spec: ReportSpec, outputs: StageOutputs) -> dict[str, Any]:
             "episodes": spec.eval_episodes,
             "conditions": list(spec.eval_conditions),
             "seeds": f"{spec.eval_seed_start}..{spec.eval_seed_start + spec.eval_episodes - 1}",
+            **(
+                {"robustness_episodes": spec.eval_robustness_episodes}
+                if spec.eval_robustness_episodes is not None
+                else {}
+            ),
         },
     }
 
 
-def gaze_and_control(records: list[Record], arms: tuple[str, ...]) -> list[Record]:
-    """The episodes of the gaze arm and its perturbed-gaze control, the report's second reference (every arm
-    is also compared with the baseline); empty when the run lacks either arm."""
-    if not {"gaze", "perturbed"} <= set(arms):
+GAZE_CONTROLS = ("perturbed", "location")
+"""the gaze arm's controls, each a reference of its own in the paired tests (every arm is also compared with
+the baseline): perturbed gaze (wrong locations), location (the same prior, supervising features, not attention)"""
+
+
+def gaze_and_control(
+    records: list[Record], arms: tuple[str, ...], control: str = "perturbed"
+) -> list[Record]:
+    """The episodes of the gaze arm and of `control`; empty when the run lacks either arm."""
+    if not {"gaze", control} <= set(arms):
         return []
-    return [r for r in records if run_of(r).arm in ("gaze", "perturbed")]
+    return [r for r in records if run_of(r).arm in ("gaze", control)]
 
 
 def _convergence_points(spec: ReportSpec, outputs: StageOutputs) -> list[tuple[RunId, bool]]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -130,7 +131,8 @@ def plot_attention(panels: list[dict[str, Any]], columns: list[str], path: Path)
             ax.set_yticks([])
             if i == 0:
                 ax.set_title(col, fontsize=9)
-        axes[i, 0].set_ylabel(row["title"], fontsize=8)
+        # long task names (LIBERO's) wrapped to the panel's height
+        axes[i, 0].set_ylabel(textwrap.fill(row["title"].replace("_", " "), 32), fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from gazereg.report.ids import RunId
+from gazereg.report.sections import glc_lines, header_lines
 from gazereg.report.tables import split_paired_name
 
 # attention-vs-gaze metrics shown, in this column order: report.md shows them all, the results block a subset
@@ -35,25 +36,37 @@ def fmt_cell(c: dict[str, Any]) -> str:
 
 
 def per_task_lines(report: dict[str, Any], condition: str = "clean") -> list[str]:
-    """Successes per task under `condition`, one row per arm (pooled over training seeds), Wilson 95%."""
+    """Successes per task under `condition` (pooled over training seeds), Wilson 95%: one row per arm, or with
+    more tasks than arms one row per task (with its demonstrations when the report counts them)."""
     t, tasks = report["success"], report["tasks"]
-    lines = [
+
+    def cell(arm: str, task: str) -> str:
+        c = t[arm][condition]["per_task"][task]
+        return f"{c['successes']}/{c['n']} [{c['ci95'][0]:.2f}, {c['ci95'][1]:.2f}]"
+
+    if len(tasks) <= len(t):
+        return [
+            f"Per task ({condition}):",
+            "",
+            "| arm | " + " | ".join(tasks) + " |",
+            "|---|" + "---|" * len(tasks),
+            *[f"| {a} | " + " | ".join(cell(a, k) for k in tasks) + " |" for a in t],
+        ]
+    demos = report.get("demos", {}).get("per_task")
+    head = ["task", *(["demos"] if demos else []), *t]
+    return [
         f"Per task ({condition}):",
         "",
-        "| arm | " + " | ".join(tasks) + " |",
-        "|---|" + "---|" * len(tasks),
-    ]
-    for a in t:
-        pt = t[a][condition]["per_task"]
-        lines.append(
-            f"| {a} | "
-            + " | ".join(
-                f"{pt[k]['successes']}/{pt[k]['n']} [{pt[k]['ci95'][0]:.2f}, {pt[k]['ci95'][1]:.2f}]"
-                for k in tasks
-            )
+        "| " + " | ".join(head) + " |",
+        "|---|" + "---|" * (len(head) - 1),
+        *[
+            f"| {k} | "
+            + "".join(f"{demos.get(k, 0)} | " if demos else "")
+            + " | ".join(cell(a, k) for a in t)
             + " |"
-        )
-    return lines
+            for k in tasks
+        ],
+    ]
 
 
 def per_seed_lines(report: dict[str, Any]) -> list[str]:
@@ -233,37 +246,6 @@ def alignment_table_lines(alignment: dict[str, dict[str, float]], keys: tuple[st
             f"| {a} | " + " | ".join(f"{v[k]:.3f}" if k in v else "-" for k in cols) + " |"
             for a, v in alignment.items()
         ],
-    ]
-
-
-def header_lines(report: dict[str, Any]) -> list[str]:
-    """The report's title, when and where it ran, and what was trained and evaluated."""
-    demos, ev, tr = report["demos"], report["eval"], report["train"]
-    return [
-        f"# gazereg experiment: preset `{report['preset']}`",
-        "",
-        f"{report['date']} on {report['machine']['summary']}; wall time {report['wall_time_s'] / 60:.1f} min.",
-        "",
-        f"Tasks: {', '.join(report['tasks'])}. Demonstrations: {demos['episodes']} episodes "
-        f"({demos['frames']} frames) on training setups; evaluation on {ev['episodes']} unseen setups "
-        f"per task and condition (seeds {ev['seeds']}), identical for every arm. Training: "
-        f"{tr['steps']} steps, batch {tr['batch_size']}, seeds {tr['seeds']}; "
-        f"gaze weight {tr['gaze_weight']} on layers {tr['gaze_layers']}.",
-    ]
-
-
-def glc_lines(report: dict[str, Any]) -> list[str]:
-    """The glc arm's own estimator: its held-out F1 next to a centre prior and uniform gaze."""
-    if not report.get("glc") or not report["glc"].get("eval"):
-        return []
-    g = report["glc"]["eval"]
-    return [
-        "## The glc arm's estimator",
-        "",
-        f"A small GLC trained here for {report['glc']['steps']} steps on other setups' simulated gaze; on its "
-        f"held-out episodes {g['heldout']}: F1 {g['glc_f1']:.3f} (centre prior {g['centre_prior_f1']:.3f}, "
-        f"uniform {g['uniform_f1']:.3f}).",
-        "",
     ]
 
 

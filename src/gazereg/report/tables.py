@@ -48,9 +48,27 @@ def success_table(records: list[dict[str, Any]]) -> dict[str, dict[str, dict[str
         for c in arm.values():
             c["rate"] = c["successes"] / c["n"]
             c["ci95"] = list(wilson(c["successes"], c["n"]))
-        if "clean" in arm:
-            for c in arm.values():
-                c["drop_from_clean"] = arm["clean"]["rate"] - c["rate"]
+    for (arm, cond), clean_rate in _clean_rates(records).items():
+        out[arm][cond]["drop_from_clean"] = clean_rate - out[arm][cond]["rate"]
+    return out
+
+
+def _clean_rates(records: list[dict[str, Any]]) -> dict[tuple[str, str], float]:
+    """{(arm, condition): the arm's clean success rate on that condition's setups (training seed, task, setup
+    seed)} for the arms evaluated clean: a condition run on fewer setups than clean (an evaluation's
+    robustness_episodes) is compared with clean on the same ones."""
+    by: dict[tuple[str, str], list[tuple[int, str, int]]] = defaultdict(list)
+    clean: dict[tuple[str, int, str, int], bool] = {}
+    for r in records:
+        run = run_of(r)
+        by[(run.arm, r["condition"])].append((run.seed, r["task"], r["seed"]))
+        if r["condition"] == "clean":
+            clean[(run.arm, run.seed, r["task"], r["seed"])] = bool(r["success"])
+    out = {}
+    for (arm, cond), keys in by.items():
+        same = [clean[(arm, *k)] for k in keys if (arm, *k) in clean]
+        if same:
+            out[(arm, cond)] = sum(same) / len(same)
     return out
 
 

@@ -9,6 +9,8 @@
         optimizer.safetensors + optimizer.json          optimizer tensors + param groups and scalars
         scheduler.json                                  LR scheduler state
         rng.safetensors + rng.json                      torch (CPU and CUDA), numpy and python RNG states
+        aux_NAME.safetensors                            training-only modules outside the policy, e.g. the
+                                                        location control's head (gazereg.training.location)
 
 The whole step folder is written under a temporary name and renamed, so a checkpoint exists completely or
 not at all; `latest_checkpoint` therefore never returns a half-written one. A checkpoint damaged afterwards (a
@@ -19,6 +21,7 @@ a logged warning.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import random
@@ -183,9 +186,11 @@ def save_checkpoint(
     scheduler: Any,
     state: Mapping[str, Any],
     eval_state_dict: Mapping[str, Tensor] | None = None,
+    aux: Mapping[str, Mapping[str, Tensor]] | None = None,
 ) -> Path:
     """Write checkpoints/step_XXXXXX atomically. `policy` supplies the raw weights (and writes the pretrained
-    files); `eval_state_dict` (EMA weights) goes into model.safetensors instead when given."""
+    files); `eval_state_dict` (EMA weights) goes into model.safetensors instead when given; `aux` maps names
+    to the state dicts of training-only modules (training_state/aux_NAME.safetensors)."""
     path = checkpoint_dir(run_dir, step)
     with atomic_dir(path) as tmp:
         policy.write_pretrained(tmp, eval_state_dict)
@@ -200,6 +205,9 @@ def save_checkpoint(
         sched = {k: v for k, v in scheduler.state_dict().items() if k != "lr_lambdas"}
         (ts / "scheduler.json").write_text(json.dumps(_jsonable(sched)) + "\n")
         save_tensors_json(ts, "rng", rng_state())
+        for name, sd in (aux or {}).items():
+            tensors = {k: v.detach().cpu().contiguous() for k, v in sd.items()}
+            save_file(tensors, str(ts / f"aux_{name}.safetensors"))
         (ts / "state.json").write_text(
             json.dumps(_jsonable({**state, "step": step}), indent=2, sort_keys=True) + "\n"
         )
@@ -222,6 +230,8 @@ class CheckpointData:
     optimizer: Any
     scheduler: dict[str, Any]
     rng: Any
+    aux: dict[str, dict[str, Tensor]] = dataclasses.field(default_factory=dict)
+    """training-only modules' weights by name (`save_checkpoint`'s aux)"""
 
 
 def _read(file: Path, reader: Callable[[Path], T]) -> T:
@@ -271,6 +281,7 @@ def read_checkpoint(path: str | Path) -> CheckpointData:
         optimizer=_read_split(ts, "optimizer"),
         scheduler=_read(ts / "scheduler.json", _read_json),
         rng=_read_split(ts, "rng"),
+        aux={f.stem[4:]: _read(f, _read_tensors) for f in sorted(ts.glob("aux_*.safetensors"))},
     )
 
 

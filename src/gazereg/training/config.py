@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import ClassVar, Literal, get_args
+from typing import Any, ClassVar, Literal, get_args
 
 from gazereg.losses import Divergence
 from gazereg.policies import POLICY_CHOICE, PolicyConfig
@@ -55,6 +55,8 @@ WeightKind = Literal["constant", "linear_warmup", "cosine"]
 Device = Literal["auto", "cpu", "cuda"]
 Precision = Literal["auto", "no", "bf16", "fp16"]
 LoggerKind = Literal["none", "tensorboard", "wandb"]
+GazeTarget = Literal["attention", "features"]
+GAZE_TARGETS: tuple[str, ...] = get_args(GazeTarget)
 
 
 @dataclass(frozen=True)
@@ -102,9 +104,16 @@ class GazeConfig(Validated):
     patch_eps: float = 1e-6
     """epsilon floor of the gaze patch distributions"""
     loss_eps: float = 1e-8
+    target: str = "attention"  # one of GAZE_TARGETS; a str so a bad value gets validate's one-line error
+    """what the gaze term supervises (attention or features): attention = KL(gaze || the action queries'
+    attention) (the method); features = KL(gaze || a training-only head's distribution over the patches,
+    read from the image tokens' features of the last of `layers`), the location control that gives the
+    policy the gaze's location information without supervising attention (gazereg.training.location); the
+    attention KL is then logged as a diagnostic only"""
 
     def validate(self, prefix: str) -> None:
         require_number(self.weight, f"{prefix}weight", 0)
+        require_choice(self.target, f"{prefix}target", GAZE_TARGETS)
         require_choice(self.schedule, f"{prefix}schedule", get_args(WeightKind))
         require_number(self.warmup_steps, f"{prefix}warmup_steps", 0, integer=True)
         require_number(self.final_frac, f"{prefix}final_frac", 0, 1)
@@ -192,6 +201,16 @@ class TrainConfig(Validated):
         require_choice(self.device, f"{prefix}device", get_args(Device))
         require_choice(self.mixed_precision, f"{prefix}mixed_precision", get_args(Precision))
         require_choice(self.logger, f"{prefix}logger", get_args(LoggerKind))
+
+
+def upgrade_saved(saved: dict[str, Any]) -> dict[str, Any]:
+    """A saved TrainConfig dict (`to_dict` as JSON) with the options added since filled in with the value
+    that reproduces how it ran: gaze.target "attention" (runs saved before the option existed regularized
+    attention). For comparisons with a new config (resume, an experiment folder)."""
+    gaze = saved.get("gaze")
+    if isinstance(gaze, dict) and "target" not in gaze:
+        return {**saved, "gaze": {**gaze, "target": "attention"}}
+    return saved
 
 
 def smoke() -> TrainConfig:

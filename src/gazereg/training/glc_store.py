@@ -4,7 +4,9 @@
 (`VisuomotorParams`: the simulated eye tracker), recorded `gaze_uv.<camera>` extras (`RecordedParams`), or
 the peak of any other source's maps. Episodes are split deterministically
 (`gazereg.gaze.glc.evaluate.holdout_split`: per task, every `holdout_every`-th is held out, or `holdout`
-lists them). It writes, under `cfg.out`:
+lists them), within the `tasks` named (all by default); with `heldout_tasks` it trains on every episode of
+`tasks` and scores on episodes of those other tasks instead (`task_split`: a cross-fitted GLC's quality on
+tasks it never saw). It writes, under `cfg.out`:
 
     run.json                  the resolved config, the split, the number of training clips
     checkpoints/, train_log.jsonl     `gazereg.training.glc.train_glc` (resumes from the newest checkpoint)
@@ -40,7 +42,7 @@ from gazereg.gaze.glc.model import GLC
 from gazereg.gaze.sources import GazeSourceParams
 from gazereg.gaze.sources.glc import CONFIGS, GLCConfigName, GLCParams
 from gazereg.gaze.sources.visuomotor import VisuomotorParams
-from gazereg.runtime.config import Validated, require_choice, require_number, to_dict
+from gazereg.runtime.config import Validated, option, require_choice, require_entries, require_number, to_dict
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_json, sweep_stale_temps
 from gazereg.training.glc import GLCTrainConfig, train_glc
@@ -69,6 +71,11 @@ class GLCRunSettings(Validated):
     """within each task, every holdout_every-th episode (by index) is held out for evaluation"""
     holdout: tuple[int, ...] = ()
     """explicit held-out episode indices (overrides holdout_every)"""
+    tasks: tuple[str, ...] = ()
+    """train on the episodes of these tasks only (an episode's `task`, as the store names it); empty = all"""
+    heldout_tasks: tuple[str, ...] = ()
+    """evaluate on other tasks instead: every holdout_every-th episode of each of these tasks (from its first),
+    none of them trained on, for the quality of a GLC that predicts tasks it never saw (needs `tasks`)"""
     device: str = "cpu"
     threads: int = 0
     """torch CPU threads (0: torch's default)"""
@@ -90,6 +97,20 @@ class GLCRunSettings(Validated):
             require_number(self.holdout_every, prefix + "holdout_every", 2, integer=True)
         for index in self.holdout:
             require_number(index, prefix + "holdout", 0, integer=True)
+        for name in ("tasks", "heldout_tasks"):
+            require_entries(getattr(self, name), prefix + name, non_empty=False)
+        if self.heldout_tasks and not self.tasks:
+            raise UsageError(
+                f"{option(prefix + 'heldout_tasks')} needs {option(prefix + 'tasks')}: the tasks to train on"
+            )
+        both = sorted(set(self.tasks) & set(self.heldout_tasks))
+        if both:
+            raise UsageError(
+                f"{option(prefix + 'heldout_tasks')} lists training tasks ({option(prefix + 'tasks')}): "
+                f"{', '.join(both)}"
+            )
+        if self.heldout_tasks and self.holdout:
+            raise UsageError(f"{option(prefix + 'holdout')} and {option(prefix + 'heldout_tasks')}: give one")
         require_number(self.threads, prefix + "threads", 0, integer=True)
 
 
@@ -179,6 +200,32 @@ def _run_settings(cfg: GLCStoreTrainConfig, split: HoldoutSplit, ds: StoreClipDa
     }
 
 
+def task_split(store: EpisodeStore, cfg: GLCRunSettings) -> HoldoutSplit:
+    """The episodes to train on and to evaluate on: `holdout_split` within `cfg.tasks` (all tasks when
+    empty), or with `cfg.heldout_tasks` every episode of `cfg.tasks` to train on and every holdout_every-th
+    episode of each held-out task (ranks 0, holdout_every, ...) to evaluate on. UsageError for a task the
+    store lacks."""
+    by_task: dict[str, list[int]] = {}
+    for i in store.indices():
+        by_task.setdefault(store.meta(i)["task"], []).append(i)
+    missing = [t for t in (*cfg.tasks, *cfg.heldout_tasks) if t not in by_task]
+    if missing:
+        raise UsageError(
+            f"--tasks / --heldout-tasks: {store.root} has no episodes of {missing}; its tasks: {sorted(by_task)}"
+        )
+    if cfg.heldout_tasks:
+        train = sorted(i for t in cfg.tasks for i in by_task[t])
+        held = sorted(i for t in cfg.heldout_tasks for i in by_task[t][:: cfg.holdout_every])
+        return HoldoutSplit(tuple(train), tuple(held))
+    split = holdout_split(store, cfg.holdout_every, cfg.holdout)
+    if not cfg.tasks:
+        return split
+    keep = {i for t in cfg.tasks for i in by_task[t]}
+    return HoldoutSplit(
+        tuple(i for i in split.train if i in keep), tuple(i for i in split.heldout if i in keep)
+    )
+
+
 def _evaluate(
     cfg: GLCStoreTrainConfig, store: EpisodeStore, split: HoldoutSplit, final: Path, source: Any
 ) -> tuple[Path, dict[str, Any]]:
@@ -196,10 +243,10 @@ def train_glc_on_store(cfg: GLCStoreTrainConfig) -> GLCStoreTrainResult:
         torch.set_num_threads(cfg.threads)
     store = EpisodeStore(cfg.store)
     sweep_stale_temps(cfg.out)  # what killed writers of an earlier attempt left
-    split = holdout_split(store, cfg.holdout_every, cfg.holdout)
+    split = task_split(store, cfg)
     if not split.train:
         raise UsageError(
-            f"--holdout / --holdout-every: no training episodes left in {cfg.store} after holding out "
+            f"--holdout / --holdout-every / --tasks: no training episodes left in {cfg.store} after holding out "
             f"{list(split.heldout)}"
         )
     model = _build_model(cfg)

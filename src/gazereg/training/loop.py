@@ -9,7 +9,10 @@
 Loss per step:  L = L_action + w(step) * mean_{valid b} KL(gaze_b || attention_b)
 where attention_b is the action queries' attention to the gaze camera's patch tokens on `gaze.layers`
 (captured by an AttentionProbe, averaged over heads, queries and layers, renormalised over the patches) and
-gaze_b the stored prior mapped onto the policy's patch grid once when the data set is built.
+gaze_b the stored prior mapped onto the policy's patch grid once when the data set is built. With
+`--gaze.target features` (the location control, gazereg.training.location) attention_b is replaced by a
+training-only head's distribution over the same patches, read from the image tokens' features; the attention
+KL is then logged but not optimised.
 
 Baseline and gaze runs share everything else: `gaze.prior` unset (or `gaze.enabled=false`) trains without the
 probe; `gaze.weight=0` runs the probe and logs the KL without adding it; both reproduce the same parameters
@@ -18,7 +21,8 @@ attention untouched). Every random draw comes from generators seeded by (seed, s
 order is a function of (seed, step), so `--resume` continues the exact trajectory of an uninterrupted run.
 
 The run folder: config.json (resolved), metrics.jsonl (loss/action, loss/gaze_kl, gaze/weight, lr, timings;
-val/* and align/* at every eval), checkpoints/step_XXXXXX/ (see gazereg.training.checkpoint).
+with target features also loss/location_kl; val/* and align/* at every eval), checkpoints/step_XXXXXX/ (see
+gazereg.training.checkpoint).
 
 The loop (`train`): `setup` (gazereg.training.setup: accelerator, data, policy, optimiser, resume), then per
 step `step` (one optimisation step), every `log_every` steps a record of the interval's means, every
@@ -49,6 +53,7 @@ from gazereg.policies import Policy
 from gazereg.runtime.config import parse, to_dict
 from gazereg.training.checkpoint import prune_checkpoints, save_checkpoint
 from gazereg.training.config import PRESETS, TrainConfig
+from gazereg.training.location import HEAD_NAME, FeatureCapture, LocationHead, average_gradients
 from gazereg.training.schedule import step_generator
 from gazereg.training.setup import Run, setup
 
@@ -62,7 +67,8 @@ class StepOutput:
     """What one optimisation step reports."""
 
     terms: dict[str, float]
-    """loss, loss/action, grad_norm and (with gaze) loss/gaze_kl, gaze/*: averaged over a logging interval"""
+    """loss, loss/action, grad_norm and (with gaze) loss/gaze_kl, gaze/* (and loss/location_kl with the
+    location head): averaged over a logging interval"""
     lr: float
     """the learning rate this update used"""
     gaze_weight: float
@@ -74,35 +80,32 @@ def step(run: Run, step: int, batch: dict[str, Tensor]) -> StepOutput:
     cfg, acc = run.cfg, run.acc
     batch = {k: v.to(acc.device, non_blocking=True) for k, v in batch.items()}
     gen = step_generator(cfg.seed, step, acc.process_index, acc.device)
-    gaze_on = run.gaze_spec is not None
-    w = run.gaze_weight(step) if gaze_on else 0.0
-    probe_ctx: Any = (
-        AttentionProbe(run.model, run.gaze_spec, adapter="tap") if gaze_on else contextlib.nullcontext()
-    )
-    with probe_ctx as probe, run.autocast():
+    w = run.gaze_weight(step) if run.gaze_spec is not None else 0.0
+    head = run.location_head
+    with contextlib.ExitStack() as stack:
+        probe = capture = None
+        if run.gaze_spec is not None:
+            probe = stack.enter_context(AttentionProbe(run.model, run.gaze_spec, adapter="tap"))
+        if head is not None and run.gaze_spec is not None:
+            capture = stack.enter_context(FeatureCapture(run.policy, run.gaze_spec))
+        stack.enter_context(run.autocast())
         loss, _ = run.model(batch, generator=gen, shift=cfg.shift)
     terms = {"loss/action": float(loss.detach())}
     if probe is not None:
-        kl, ginfo = gaze_loss(
-            batch["gaze"],
-            probe.distribution(),
-            batch["gaze_valid"],
-            cfg.gaze.divergence,
-            cfg.gaze.loss_eps,
-            gaze_grid=run.built.gaze_grid,
-            attention_grid=run.built.attention_grid,
-        )
+        reg, gaze_terms = gaze_term(run, batch, probe, capture)
         if w > 0:  # weight 0 logs the KL but leaves the graph (and so the update) exactly the baseline's
-            loss = loss + w * kl
-        terms.update(
-            {"loss/gaze_kl": float(kl.detach()), "gaze/patch_mass": float(probe.patch_mass().mean()), **ginfo}
-        )
+            loss = loss + w * reg
+        terms.update(gaze_terms)
     if not torch.isfinite(loss):
         raise FloatingPointError(f"non-finite loss at step {step}: {terms}")
     run.opt.zero_grad(set_to_none=True)
     acc.backward(loss)
+    params: Any = run.model.parameters()
+    if head is not None:
+        average_gradients(head, acc)
+        params = [*params, *head.parameters()]
     clip = cfg.optim.grad_clip
-    grad_norm = acc.clip_grad_norm_(run.model.parameters(), clip) if clip > 0 else None
+    grad_norm = acc.clip_grad_norm_(params, clip) if clip > 0 else None
     run.opt.step()
     lr = run.sched.get_last_lr()[0]
     run.sched.step()
@@ -114,6 +117,39 @@ def step(run: Run, step: int, batch: dict[str, Tensor]) -> StepOutput:
     return StepOutput(terms, lr, w)
 
 
+def gaze_term(
+    run: Run, batch: dict[str, Tensor], probe: AttentionProbe, capture: FeatureCapture | None
+) -> tuple[Tensor, dict[str, float]]:
+    """The gaze term (before its weight) and its logged values: KL(gaze || attention); with the location
+    head (`capture` given) KL(gaze || head), the attention's KL then computed on detached attention and
+    logged only."""
+    cfg, built = run.cfg, run.built
+
+    def kl(dist: Tensor) -> tuple[Tensor, dict[str, float]]:
+        return gaze_loss(
+            batch["gaze"],
+            dist,
+            batch["gaze_valid"],
+            cfg.gaze.divergence,
+            cfg.gaze.loss_eps,
+            gaze_grid=built.gaze_grid,
+            attention_grid=built.attention_grid,
+        )
+
+    attention = probe.distribution()
+    kl_attention, ginfo = kl(attention if capture is None else attention.detach())
+    terms = {
+        "loss/gaze_kl": float(kl_attention.detach()),
+        "gaze/patch_mass": float(probe.patch_mass().mean()),
+        **ginfo,
+    }
+    if capture is None or run.location_head is None:
+        return kl_attention, terms
+    kl_location, _ = kl(run.location_head(capture.features()))
+    terms["loss/location_kl"] = float(kl_location.detach())
+    return kl_location, terms
+
+
 @torch.no_grad()
 def evaluate_batch(
     policy: Policy,
@@ -122,37 +158,39 @@ def evaluate_batch(
     gaze_camera: str | None,
     prefix: str,
     grids: tuple[tuple[int, int] | None, tuple[int, int] | None] = (None, None),
+    head: LocationHead | None = None,
 ) -> dict[str, float]:
     """Action loss and, with a prior, the attention-gaze alignment on one fixed batch (no RNG consumed).
-    grids: (gaze grid, attention grid), (rows, cols) each, checked against each other by `gaze_loss`."""
+    grids: (gaze grid, attention grid), (rows, cols) each, checked against each other by `gaze_loss`;
+    head: the location control's head, whose KL is reported as {prefix}/location_kl."""
     was_training = policy.training
     policy.eval()
     gen = step_generator(cfg.seed, -1, 0, policy.device)
     out: dict[str, float] = {}
     try:
-        probe_ctx: Any = contextlib.nullcontext()
-        if gaze_camera is not None and "gaze" in batch:
-            probe_ctx = AttentionProbe(
-                policy, policy.gaze_probe_spec(gaze_camera, cfg.gaze.layers), adapter="tap"
-            )
-        with probe_ctx as probe:
+        with contextlib.ExitStack() as stack:
+            probe = capture = None
+            if gaze_camera is not None and "gaze" in batch:
+                spec = policy.gaze_probe_spec(gaze_camera, cfg.gaze.layers)
+                probe = stack.enter_context(AttentionProbe(policy, spec, adapter="tap"))
+                capture = stack.enter_context(FeatureCapture(policy, spec)) if head is not None else None
             loss, _ = policy(batch, generator=gen)
         out[f"{prefix}/loss_action"] = float(loss)
         if probe is not None:
             dev = policy.device
             attn = probe.distribution()
             gaze, valid = batch["gaze"].to(dev), batch["gaze_valid"].to(dev)
-            kl, _ = gaze_loss(
-                gaze,
-                attn,
-                valid,
-                cfg.gaze.divergence,
-                cfg.gaze.loss_eps,
-                gaze_grid=grids[0],
-                attention_grid=grids[1],
-            )
-            out[f"{prefix}/gaze_kl"] = float(kl)
+
+            def kl(dist: Tensor) -> float:
+                div, eps = cfg.gaze.divergence, cfg.gaze.loss_eps
+                return float(
+                    gaze_loss(gaze, dist, valid, div, eps, gaze_grid=grids[0], attention_grid=grids[1])[0]
+                )
+
+            out[f"{prefix}/gaze_kl"] = kl(attn)
             out[f"{prefix}/patch_mass"] = float(probe.patch_mass().mean())
+            if capture is not None and head is not None:
+                out[f"{prefix}/location_kl"] = kl(head(capture.features()))
             aligned = alignment_metrics(gaze.cpu(), attn.cpu(), valid.cpu())
             out.update({f"align_{prefix}/{k}": v for k, v in aligned.items()})
     finally:
@@ -168,7 +206,10 @@ def evaluate(run: Run, step: int, callbacks: Sequence[Callback]) -> dict[str, An
         built = run.built
         grids = (built.gaze_grid, built.attention_grid)
         for name, batch in run.eval_batches.items():
-            out.update(evaluate_batch(run.eval_policy(), batch, run.cfg, built.gaze_camera, name, grids))
+            policy = run.eval_policy()
+            out.update(
+                evaluate_batch(policy, batch, run.cfg, built.gaze_camera, name, grids, run.location_head)
+            )
         for cb in callbacks:
             policy = run.eval_policy()
             policy.eval()
@@ -199,6 +240,7 @@ def checkpoint(run: Run, step: int) -> Path | None:
             run.sched,
             state,
             ema.state_dict() if ema is not None else None,
+            {HEAD_NAME: run.location_head.state_dict()} if run.location_head is not None else None,
         )
         prune_checkpoints(run.run_dir, run.cfg.keep_checkpoints)
     run.acc.wait_for_everyone()
@@ -245,7 +287,8 @@ def log_record(run: Run, done: int, last: StepOutput, interval: Interval) -> dic
 
 
 def log_start(run: Run) -> None:
-    gaze = f"{run.cfg.gaze.prior} on {run.built.gaze_camera}" if run.gaze_spec is not None else "off"
+    g = run.cfg.gaze
+    gaze = f"{g.prior} on {run.built.gaze_camera}, target {g.target}" if run.gaze_spec is not None else "off"
     log.info(
         "policy %s: %d parameters; %d training samples; %d process(es) on %s; gaze %s",
         run.policy.name,
@@ -290,7 +333,7 @@ def train(cfg: TrainConfig, callbacks: Sequence[Callback] = ()) -> dict[str, Any
         if (is_log or is_eval) and run.main:
             run.metrics.write(record)
             run.logger.log(record, done)
-            shown = ("loss/action", "loss/gaze_kl", "val/gaze_kl")
+            shown = ("loss/action", "loss/gaze_kl", "loss/location_kl", "val/gaze_kl")
             bar.set_postfix({k.split("/")[-1]: f"{record[k]:.4f}" for k in shown if k in record})
         if done % cfg.save_every == 0 or done == run.stop:
             last_ckpt = checkpoint(run, done)

@@ -40,8 +40,9 @@ from gazereg.runtime.hardware import native_bf16
 from gazereg.runtime.io import sweep_stale_temps
 from gazereg.runtime.seeding import seed_everything
 from gazereg.training.checkpoint import CheckpointData, latest_checkpoint, read_resumable, restore_checkpoint
-from gazereg.training.config import EXECUTION_KEYS, TrainConfig
+from gazereg.training.config import EXECUTION_KEYS, TrainConfig, upgrade_saved
 from gazereg.training.ema import EMA
+from gazereg.training.location import HEAD_NAME, LocationHead, make_location_head
 from gazereg.training.logger import MetricsFile, NullLogger, make_logger
 from gazereg.training.schedule import lr_lambda, param_groups
 
@@ -141,6 +142,8 @@ class Run:
     gaze_weight: WeightSchedule
     eval_batches: dict[str, dict[str, Tensor]]
     """fixed batches for `evaluate`: 'val' (or 'train' without validation episodes)"""
+    location_head: LocationHead | None = None
+    """the location control's training-only head (gaze.target features with the gaze term on), else None"""
 
     @property
     def policy(self) -> Policy:
@@ -217,6 +220,7 @@ def check_resume_config(ckpt: CheckpointData, cfg: TrainConfig) -> None:
     saved = ckpt.state.get("config")
     if not isinstance(saved, dict):
         raise UsageError(f"{ckpt.path} records no training config; it cannot be resumed")
+    saved = upgrade_saved(saved)
     allowed = ", ".join(option(k) for k in EXECUTION_KEYS)
     check_same_config(
         saved,
@@ -229,14 +233,16 @@ def check_resume_config(ckpt: CheckpointData, cfg: TrainConfig) -> None:
 
 
 def make_optimiser(
-    policy: Policy, cfg: TrainConfig
+    policy: Policy, cfg: TrainConfig, head: nn.Module | None = None
 ) -> tuple[torch.optim.Optimizer, torch.optim.lr_scheduler.LambdaLR, EMA | None]:
     """AdamW over `param_groups` (the fused kernel: one pass over all parameters, about 4x less optimiser time
-    than the per-tensor loop on a CPU), the warm-up + cosine LR schedule over cfg.steps, and the EMA."""
+    than the per-tensor loop on a CPU), the warm-up + cosine LR schedule over cfg.steps, and the EMA. A
+    training-only `head` (the location control's) is optimised alike, in groups after the policy's."""
     fused = next(policy.parameters()).device.type in ("cpu", "cuda")
-    opt = torch.optim.AdamW(
-        param_groups(policy, cfg.optim.weight_decay), lr=cfg.optim.lr, betas=cfg.optim.betas, fused=fused
-    )
+    groups = param_groups(policy, cfg.optim.weight_decay)
+    if head is not None:
+        groups += [g for g in param_groups(head, cfg.optim.weight_decay) if g["params"]]
+    opt = torch.optim.AdamW(groups, lr=cfg.optim.lr, betas=cfg.optim.betas, fused=fused)
     sched = torch.optim.lr_scheduler.LambdaLR(
         opt, lambda s: lr_lambda(s, cfg.steps, cfg.optim.warmup_steps, cfg.optim.min_lr_frac)
     )
@@ -250,8 +256,14 @@ def restore(
     opt: torch.optim.Optimizer,
     sched: torch.optim.lr_scheduler.LambdaLR,
     ema: EMA | None,
+    head: nn.Module | None = None,
 ) -> int:
-    """Load weights, optimiser, LR schedule, RNG states (and the EMA) from `ckpt`; returns its step."""
+    """Load weights, optimiser, LR schedule, RNG states (the EMA and the location head) from `ckpt`; returns
+    its step."""
+    if head is not None:
+        if HEAD_NAME not in ckpt.aux:
+            raise ValueError(f"{ckpt.path} has no {HEAD_NAME} but gaze.target is features")
+        head.load_state_dict(ckpt.aux[HEAD_NAME])
     state = restore_checkpoint(ckpt, policy, opt, sched)
     start = int(state["step"])
     if ema is not None:
@@ -259,6 +271,32 @@ def restore(
             raise ValueError(f"{ckpt.path} has no EMA weights but optim.ema_decay > 0")
         ema.load_state_dict(state["ema_state_dict"], int(state.get("ema_updates", start)))
     return start
+
+
+def gaze_parts(cfg: TrainConfig, built: Built) -> tuple[ProbeSpec | None, LocationHead | None]:
+    """The probed attention when the gaze term runs (a prior and gaze.enabled) and, with gaze.target
+    features, the location head (on the policy's device); (None, None) without the gaze term."""
+    g = cfg.gaze
+    if g.prior is None or not g.enabled or built.gaze_camera is None:
+        return None, None
+    spec = built.policy.gaze_probe_spec(built.gaze_camera, g.layers)
+    if g.target != "features":
+        return spec, None
+    try:
+        return spec, make_location_head(built.policy, spec, fixed_batch(built.train_set, 1), cfg.seed)
+    except NotImplementedError as e:
+        raise UsageError(f"{option('gaze.target')} features: {e}") from e
+
+
+def make_loader(cfg: TrainConfig, built: Built, sampler: StepBatchSampler, acc: Any) -> Any:
+    return torch.utils.data.DataLoader(
+        built.train_set,
+        batch_sampler=sampler,
+        num_workers=cfg.data.num_workers,
+        collate_fn=collate_batch,
+        pin_memory=acc.device.type == "cuda",
+        persistent_workers=False,
+    )
 
 
 def setup(cfg: TrainConfig) -> Run:
@@ -270,12 +308,13 @@ def setup(cfg: TrainConfig) -> Run:
     cfg, policy, main = built.config, built.policy, acc.is_main_process
     run_dir = Path(cfg.run_dir)
     policy.to(acc.device)
-    opt, sched, ema = make_optimiser(policy, cfg)
+    gaze_spec, head = gaze_parts(cfg, built)
+    opt, sched, ema = make_optimiser(policy, cfg, head)
     metrics = MetricsFile(run_dir / "metrics.jsonl")
     start = 0
     if ckpt is not None:
         check_resume_config(ckpt, cfg)
-        start = restore(ckpt, policy, opt, sched, ema)
+        start = restore(ckpt, policy, opt, sched, ema, head)
         if main:
             log.info("resumed from %s (step %d)", ckpt.path, start)
     if main:
@@ -287,16 +326,7 @@ def setup(cfg: TrainConfig) -> Run:
     stop = min(cfg.steps, cfg.stop_at) if cfg.stop_at is not None else cfg.steps
     rank, world = acc.process_index, acc.num_processes
     sampler = StepBatchSampler(len(built.train_set), cfg.batch_size, cfg.seed, stop, start, rank, world)
-    loader = torch.utils.data.DataLoader(
-        built.train_set,
-        batch_sampler=sampler,
-        num_workers=cfg.data.num_workers,
-        collate_fn=collate_batch,
-        pin_memory=acc.device.type == "cuda",
-        persistent_workers=False,
-    )
     g = cfg.gaze
-    gaze_on = g.prior is not None and g.enabled
     logger = make_logger(cfg.logger, run_dir, to_dict(cfg), cfg.wandb_project) if main else NullLogger()
     eval_sets = {"val": built.val_set} if built.val_set is not None else {"train": built.train_set}
     return Run(
@@ -308,13 +338,14 @@ def setup(cfg: TrainConfig) -> Run:
         sched=sched,
         ema=ema,
         sampler=sampler,
-        loader=loader,
+        loader=make_loader(cfg, built, sampler, acc),
         start=start,
         stop=stop,
         resumed_from=ckpt.path if ckpt is not None else None,
         metrics=metrics,
         logger=logger,
-        gaze_spec=policy.gaze_probe_spec(built.gaze_camera, g.layers) if gaze_on else None,
+        gaze_spec=gaze_spec,
         gaze_weight=WeightSchedule(g.weight, g.schedule, g.warmup_steps, cfg.steps, g.final_frac),
         eval_batches={k: fixed_batch(ds, cfg.eval_batch_size) for k, ds in eval_sets.items()},
+        location_head=head,
     )

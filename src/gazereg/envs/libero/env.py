@@ -85,6 +85,7 @@ from gazereg.envs.libero.setup import (
     make_control_env,
     parse_task,
     resolve_task,
+    setup_index,
     suite_benchmark,
 )
 from gazereg.envs.perturbations import LightState, Perturbation
@@ -172,13 +173,7 @@ class LiberoEnv(gym.Env):
     # ----- setups -----------------------------------------------------------------------------------------
     def setup_of(self, seed: int) -> tuple[int, int]:
         """Setup seed -> (task index in the suite, initial-state index among the task's fixed ones)."""
-        if seed < 0:
-            raise ValueError(f"setup seeds are >= 0, got {seed}")
-        if self._fixed_task is not None:
-            t, k = self._fixed_task, seed
-        else:
-            t, k = seed % len(self.task_names), seed // len(self.task_names)
-        return t, k % len(init_states(self.suite, t))
+        return setup_index(self.suite, self._fixed_task, seed)
 
     def _build(self, index: int) -> None:
         if self._task_index == index and self._env is not None:

@@ -145,6 +145,21 @@ def init_states(suite: str, index: int) -> np.ndarray:
         return np.asarray(suite_benchmark(suite).get_task_init_states(index))
 
 
+def setup_index(suite: str, task: int | None, seed: int) -> tuple[int, int]:
+    """Setup seed -> (task index in `suite`, initial-state index among the task's fixed ones), for an env
+    over one task (`task`: its index) or the whole suite (`task` None): `LiberoEnv.setup_of`. One task's seed
+    `s` is its initial state `s mod n` (n: the task's fixed initial states); a suite's is task `s mod tasks`
+    at initial state `(s div tasks) mod n`."""
+    if seed < 0:
+        raise ValueError(f"setup seeds are >= 0, got {seed}")
+    if task is not None:
+        t, k = task, seed
+    else:
+        n = len(suite_benchmark(suite).get_task_names())
+        t, k = seed % n, seed // n
+    return t, k % len(init_states(suite, t))
+
+
 def resolve_task(task: str) -> tuple[str, int | None]:
     """A task spec -> (suite, task index or None for the whole suite), names resolved; KeyError if unknown."""
     suite, which = parse_task(task)

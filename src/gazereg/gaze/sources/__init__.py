@@ -10,7 +10,8 @@ its parameters (or from its name and parameter values):
     params = parse_source_params("glc", ["checkpoint=runs/glc/final", "stride=1"])   # command-line text
 
 Built in: `uniform`, `saliency` (`simple`), `perturbed`, `visuomotor` (simulation), `recorded` (eye tracking
-stored with the episode), `glc` (the video gaze estimator). Third-party sources register the same way.
+stored with the episode), `glc` (the video gaze estimator), `glc_folds` (cross-fitted GLC: each task's maps from
+a GLC not trained on it). Third-party sources register the same way.
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ _LAZY = {
     "recorded": "gazereg.gaze.sources.recorded",
     "visuomotor": "gazereg.gaze.sources.visuomotor",
     "glc": "gazereg.gaze.sources.glc",
+    "glc_folds": "gazereg.gaze.sources.glc_folds",
 }
 
 

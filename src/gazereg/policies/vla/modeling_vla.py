@@ -157,6 +157,10 @@ class VLAPolicy(Policy):
             layers=self.resolve_layers(layers),
         )
 
+    def layer_module(self, layer: int) -> nn.Module:
+        """Block `layer`: its output's first element is every token's features (B, T, D) after the layer."""
+        return self.blocks[self.resolve_layers((layer,))[0]]
+
     # ----- forward -----------------------------------------------------------------------------------------
     def attention_mask(self, text_mask: Tensor) -> Tensor:
         """Block mask (B, 1, T, T) bool, True = query (row) may attend to key (column)."""

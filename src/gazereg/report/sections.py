@@ -1,0 +1,90 @@
+"""Sections of report.md that say what ran (`header_lines`: tasks, demonstrations, evaluation setups, training)
+and the glc arm's own estimators (`glc_lines`), as markdown lines from report.json (a dict); `markdown` puts
+them together (`gazereg.report.markdown`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+def demos_text(demos: dict[str, Any]) -> str:
+    """The training demonstrations in one phrase: episodes, frames and, where counted, the tasks that have
+    fewer than wanted (the expert failed on some of their training setups)."""
+    text = f"{demos['episodes']} episodes ({demos['frames']} frames) on training setups"
+    if "per_task" not in demos:
+        return text
+    short = {t: n for t, n in demos["per_task"].items() if n < demos["wanted"]}
+    if not short:
+        return f"{text}, {demos['wanted']} per task"
+    fewer = ", ".join(f"{t} {n}" for t, n in short.items())
+    return f"{text}, {demos['wanted']} per task but fewer where the expert failed ({fewer})"
+
+
+def eval_text(ev: dict[str, Any]) -> str:
+    """The evaluation setups in one phrase."""
+    text = f"{ev['episodes']} unseen setups per task and condition (seeds {ev['seeds']})"
+    if ev.get("robustness_episodes") is None:
+        return text
+    return (
+        f"{ev['episodes']} unseen setups per task clean (seeds {ev['seeds']}) and the first "
+        f"{ev['robustness_episodes']} of them under every other condition"
+    )
+
+
+def header_lines(report: dict[str, Any]) -> list[str]:
+    """The report's title, when and where it ran, and what was trained and evaluated."""
+    ev, tr = report["eval"], report["train"]
+    return [
+        f"# gazereg experiment: preset `{report['preset']}`",
+        "",
+        f"{report['date']} on {report['machine']['summary']}; wall time {report['wall_time_s'] / 60:.1f} min.",
+        "",
+        f"Tasks: {', '.join(report['tasks'])}. Demonstrations: {demos_text(report['demos'])}; evaluation on "
+        f"{eval_text(ev)}, identical for every arm. Training: "
+        f"{tr['steps']} steps, batch {tr['batch_size']}, seeds {tr['seeds']}; "
+        f"gaze weight {tr['gaze_weight']} on layers {tr['gaze_layers']}.",
+    ]
+
+
+def glc_lines(report: dict[str, Any]) -> list[str]:
+    """The glc arm's own estimator: its held-out F1 next to a centre prior and uniform gaze (per fold when
+    cross-fitted)."""
+    glc = report.get("glc")
+    if glc and glc.get("folds"):
+        return glc_folds_lines(glc)
+    if not glc or not glc.get("eval"):
+        return []
+    g = glc["eval"]
+    return [
+        "## The glc arm's estimator",
+        "",
+        f"A small GLC trained here for {glc['steps']} steps on other setups' simulated gaze; on its "
+        f"held-out episodes {g['heldout']}: F1 {g['glc_f1']:.3f} (centre prior {g['centre_prior_f1']:.3f}, "
+        f"uniform {g['uniform_f1']:.3f}).",
+        "",
+    ]
+
+
+def glc_folds_lines(glc: dict[str, Any]) -> list[str]:
+    """The cross-fitted GLCs: per fold, the tasks it predicts and its quality on their episodes."""
+    lines = [
+        "## The glc arm's estimators (cross-fitted)",
+        "",
+        "Each task's glc prior comes from a small GLC trained on the simulated gaze of the other tasks' training "
+        "demonstrations only; scored on episodes of the tasks it predicts (F1 and AUC; the centre prior is "
+        "fitted on its training tasks' gaze):",
+        "",
+        "| predicts | steps | episodes | GLC F1 | centre prior F1 | uniform F1 | GLC AUC | centre prior AUC |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for fold in glc["folds"]:
+        g = fold.get("eval")
+        scores = (
+            f"{len(g['heldout'])} | {g['glc_f1']:.3f} | {g['centre_prior_f1']:.3f} | {g['uniform_f1']:.3f} | "
+            f"{g['glc_auc']:.3f} | {g['centre_prior_auc']:.3f}"
+            if g
+            else "0 | - | - | - | - | -"
+        )
+        lines.append(f"| {', '.join(fold['predicts'])} | {fold['steps']} | {scores} |")
+    return [*lines, ""]
