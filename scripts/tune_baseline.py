@@ -1,0 +1,158 @@
+"""Tune the reference VLA's recipe WITHOUT gaze, on validation setups that are neither training nor evaluation
+setups (issue #21, step 1: a strong baseline first, gaze blind).
+
+    .venv/bin/python scripts/tune_baseline.py                      # every candidate not yet done, in order
+    .venv/bin/python scripts/tune_baseline.py --only default ema   # some of them
+    .venv/bin/python scripts/tune_baseline.py --table              # only rewrite docs/tuning/baseline.md
+
+Protocol (fixed before any result was seen):
+- Data: the `quick` preset's demonstrations (reach-v3 and button-press-topdown-v3, 50 per task on setups 0..49
+  plus replacements of the expert's failures), the same for every candidate.
+- Validation: 25 setups per task from seed 1300 (Meta-World seeds 1300..1324), clean. Training uses seeds
+  0..69 at most and the evaluation presets 1000..1049 (GLC 1700..; this run's alignment episodes 1800..):
+  disjoint.
+- Budget: the `paper` preset's 8,000 steps of batch 32, two training seeds (0, 1) per candidate, the baseline
+  arm only (no gaze term anywhere).
+- Candidates change one thing against `default` (today's recipe), in the order below, which is the order of
+  how much each was expected to matter; a candidate is one `gazereg experiment` run folder, resumable.
+- Choice: the candidate with the most validation successes over both seeds and tasks. The gaze arm then uses
+  the chosen recipe unchanged, tuning at most the gaze weight and layers on the same validation setups.
+Each finished candidate writes docs/tuning/baseline/<name>.json (its command, wall time and validation
+successes per task and seed); docs/tuning/baseline.md is the table of every finished candidate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from gazereg.report.ids import RunId
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs" / "tuning"
+BASE = [
+    "--preset", "quick", "--arms", "baseline", "--train-seeds", "0", "1", "--train.steps", "8000",
+    "--eval.seed-start", "1300", "--eval.episodes", "25", "--convergence-points", "1", "--heldout-per-task", "1",
+]  # fmt: skip
+CANDIDATES: dict[str, tuple[str, list[str]]] = {
+    "default": ("today's recipe: 96 px, width 128, depth 4, chunk 4, lr 1e-3, shift 4, no EMA", []),
+    "ema": ("EMA of the weights, decay 0.999", ["--train.optim.ema-decay", "0.999"]),
+    "lr5e-4": ("learning rate 5e-4", ["--train.optim.lr", "5e-4"]),
+    "chunk8": ("action chunks of 8", ["--train.policy.chunk", "8"]),
+    "wide": ("width 192, depth 6", ["--train.policy.dim", "192", "--train.policy.depth", "6"]),
+    "shift8": ("random shift of 8 px", ["--train.shift", "8"]),
+    "steps16k": ("16,000 steps", ["--train.steps", "16000"]),
+    "px128": ("128 px images, 16 px patches", ["--image-size", "128", "--train.policy.image-hw", "128", "128",
+                                                "--train.policy.patch-size", "16"]),
+}  # fmt: skip
+
+
+def command(name: str) -> list[str]:
+    """The `gazereg experiment` command line of candidate `name` (its overrides after the shared ones)."""
+    return ["gazereg", "experiment", *BASE, *CANDIDATES[name][1], "--out", f"runs/tune/{name}"]
+
+
+def validation_successes(episodes: list[dict[str, Any]]) -> dict[str, dict[str, list[int]]]:
+    """{task: {training seed: [successes, episodes]}} of the clean episodes of an eval_info.json."""
+    out: dict[str, dict[str, list[int]]] = {}
+    for ep in episodes:
+        if ep["condition"] != "clean":
+            continue
+        seed = str(RunId.parse(ep["arm"]).seed)
+        cell = out.setdefault(ep["task"], {}).setdefault(seed, [0, 0])
+        cell[0] += int(ep["success"])
+        cell[1] += 1
+    return out
+
+
+def run_candidate(name: str) -> Path:
+    """Run (or resume) candidate `name`; write and return docs/tuning/baseline/<name>.json."""
+    cmd = command(name)
+    t0 = time.time()
+    subprocess.run([sys.executable, "-m", "gazereg.cli", *cmd[1:]], cwd=ROOT, check=True)
+    run = ROOT / "runs" / "tune" / name
+    report = json.loads((run / "report.json").read_text())
+    episodes = json.loads((run / "eval" / "eval_info.json").read_text())["episodes"]
+    result = {
+        "candidate": name,
+        "change": CANDIDATES[name][0],
+        "command": shlex.join(cmd),
+        "wall_s_this_call": round(time.time() - t0, 1),
+        "stage_seconds": report["stage_times_s"],
+        "wall_time_s": report["wall_time_s"],
+        "machine": report["machine"]["summary"],
+        "date": report["date"],
+        "validation": validation_successes(episodes),
+    }
+    path = DOCS / "baseline" / f"{name}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(result, indent=1) + "\n")
+    tmp.replace(path)
+    return path
+
+
+def table() -> str:
+    """docs/tuning/baseline.md: every finished candidate's validation successes, best first."""
+    rows = []
+    for name in CANDIDATES:
+        path = DOCS / "baseline" / f"{name}.json"
+        if not path.exists():
+            continue
+        r = json.loads(path.read_text())
+        val = r["validation"]
+        total = sum(c[0] for t in val.values() for c in t.values())
+        n = sum(c[1] for t in val.values() for c in t.values())
+        per_task = ", ".join(
+            f"{task} {sum(c[0] for c in seeds.values())}/{sum(c[1] for c in seeds.values())}"
+            for task, seeds in val.items()
+        )
+        per_seed = ", ".join(
+            f"s{s} {sum(val[t][s][0] for t in val)}" for s in sorted({s for t in val.values() for s in t})
+        )
+        rows.append((total, n, name, r["change"], per_task, per_seed))
+    rows.sort(key=lambda row: -row[0] / max(row[1], 1))
+    lines = [
+        "# Baseline tuning on validation setups (no gaze)",
+        "",
+        "Written by `python scripts/tune_baseline.py` (its docstring states the protocol); each row is one",
+        "candidate's `gazereg experiment` run, its command in docs/tuning/baseline/<candidate>.json.",
+        "",
+        "| candidate | change | validation success | per task | per training seed |",
+        "|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| {name} | {change} | {k}/{n} = {k / n:.2f} | {pt} | {ps} |" for k, n, name, change, pt, ps in rows
+    ]
+    done = {row[2] for row in rows}
+    todo = [name for name in CANDIDATES if name not in done]
+    lines += ["", f"Not run yet: {', '.join(todo)}." if todo else "Every candidate has run."]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--only", nargs="+", choices=list(CANDIDATES), help="run these candidates (default: all)")
+    p.add_argument("--table", action="store_true", help="only rewrite docs/tuning/baseline.md")
+    a = p.parse_args(argv)
+    if not a.table:
+        for name in a.only or list(CANDIDATES):
+            if (DOCS / "baseline" / f"{name}.json").exists() and not a.only:
+                continue
+            print(f"candidate {name}: {shlex.join(command(name))}", flush=True)
+            run_candidate(name)
+            (DOCS / "baseline.md").write_text(table())
+    DOCS.mkdir(parents=True, exist_ok=True)
+    (DOCS / "baseline.md").write_text(table())
+    print(table())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
