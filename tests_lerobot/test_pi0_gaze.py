@@ -392,7 +392,9 @@ def test_lerobot_train_with_gradient_checkpointing(tmp_path, dataset_root, train
     """The real lerobot-train with --policy.gradient_checkpointing=true and the gaze term (refused before)."""
     args = [*_policy_args("pi05"), "--policy.gradient_checkpointing=true"]
     log = _lerobot_train(train_env, tmp_path / "run", dataset_root, 1, *args)
-    cfg = json.loads((tmp_path / "run" / "checkpoints" / "last" / "pretrained_model" / "config.json").read_text())
+    cfg = json.loads(
+        (tmp_path / "run" / "checkpoints" / "last" / "pretrained_model" / "config.json").read_text()
+    )
     assert cfg["gradient_checkpointing"] is True
     assert len(_kls(log)) == 1 and all(math.isfinite(k) and k > 0 for k in _kls(log)), log[-3000:]
 
