@@ -19,7 +19,7 @@ from pathlib import Path
 
 from gazereg.experiment.config import ARMS, ExperimentConfig
 from gazereg.gaze.sources import GazeSourceParams
-from gazereg.gaze.sources.glc_folds import GLCFoldsParams
+from gazereg.gaze.sources.glc_folds import GLCFoldsParams, inference_settings
 from gazereg.gaze.sources.perturbed import PerturbedParams
 from gazereg.gaze.sources.simple import SaliencyParams, UniformParams
 
@@ -62,16 +62,10 @@ def glc_folds_source(cfg: ExperimentConfig, task_names: Mapping[str, str] | None
         for k in range(len(cfg.glc_folds))
         for t in fold_tasks(cfg, k)[1]
     ]
-    g = cfg.glc
     return GLCFoldsParams(
         tasks=tuple(t for t, _ in pairs),
         checkpoints=tuple(c for _, c in pairs),
-        stride=g.stride,
-        mode=g.mode,
-        hop=g.hop,
-        batch_size=g.batch_size,
-        device=g.device,
-        temperature=g.temperature,
+        **inference_settings(cfg.glc),
     )
 
 

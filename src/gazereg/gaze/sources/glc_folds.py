@@ -58,15 +58,16 @@ class GLCFoldsParams(GazeSourceParams):
 
     def fold(self, checkpoint: Path) -> GLCParams:
         """The `glc` source's parameters of the fold GLC in `checkpoint`."""
-        return GLCParams(
-            checkpoint=Path(checkpoint),
-            stride=self.stride,
-            mode=self.mode,
-            hop=self.hop,
-            batch_size=self.batch_size,
-            device=self.device,
-            temperature=self.temperature,
-        )
+        return GLCParams(checkpoint=Path(checkpoint), **inference_settings(self))
+
+
+INFERENCE_FIELDS = ("stride", "mode", "hop", "batch_size", "device", "temperature")
+"""the `glc` source's inference settings that `glc_folds` applies to every fold"""
+
+
+def inference_settings(params: GLCParams | GLCFoldsParams) -> dict[str, object]:
+    """The inference settings (`INFERENCE_FIELDS`) of a glc or glc_folds source's parameters."""
+    return {name: getattr(params, name) for name in INFERENCE_FIELDS}
 
 
 @register_gaze_source(GLCFoldsParams)
