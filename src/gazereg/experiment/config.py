@@ -1,4 +1,5 @@
-"""The experiment's configuration and its named presets (smoke, quick, paper, full, libero, libero_smoke).
+"""The experiment's configuration and its named presets (smoke, quick, paper, sweep, full, libero,
+libero_smoke).
 
 An `ExperimentConfig` checks its options when it is built, its nested `train` and `eval` configs theirs
 (`gazereg.runtime.config.Validated`): a bad value is a UsageError naming the option as typed, e.g.
@@ -14,6 +15,7 @@ from pathlib import Path
 from typing import Literal
 
 from gazereg.envs.base import UnknownSimulator, simulator
+from gazereg.envs.metaworld.difficulty import draw_tasks
 from gazereg.evaluation.config import ROBUSTNESS_CONDITIONS, EvalConfig
 from gazereg.evaluation.config import presets as eval_presets
 from gazereg.gaze.aggregation import AggregationConfig
@@ -240,6 +242,34 @@ def paper() -> ExperimentConfig:
     )
 
 
+SWEEP_DRAW = {"easy": 4, "medium": 2, "hard": 2}
+"""the task sweep's tasks per LeRobot difficulty group (gazereg.envs.metaworld.difficulty)"""
+
+
+def sweep() -> ExperimentConfig:
+    """More tasks, fixed before any result was seen: 4 easy, 2 medium and 2 hard Meta-World tasks drawn at
+    random from LeRobot's difficulty groups without the two headline tasks (`draw_tasks(SWEEP_DRAW,
+    exclude=quick().tasks, seed=0)`: faucet-open, window-close, handle-press-side, button-press; coffee-push,
+    soccer; pick-place, push), trained together with the `paper` preset's recipe (one seed); baseline,
+    visuomotor gaze, cross-fitted glc (two GLCs, each trained on the other four tasks' demonstrations, 2 easy,
+    1 medium and 1 hard each: no task's prior comes from a GLC that saw its gaze) and the location control; 50
+    unseen setups per task, clean. Sized for about 70 minutes on 2 cores: demos 8 x 53 ~ 6, GLC folds ~ 15,
+    training 4 runs x 8,000 steps at ~0.1 s / 2 at once ~ 27, evaluation 4 x 400 episodes at <= 0.7 s ~ 19."""
+    tasks = draw_tasks(SWEEP_DRAW, exclude=quick().tasks, seed=0)
+    return ExperimentConfig(
+        out=Path("runs/sweep"),
+        tasks=tasks,
+        demos_per_task=50,
+        arms=("baseline", "gaze", "glc", "location"),
+        glc_folds=(tasks[0:2] + tasks[4:5] + tasks[6:7], tasks[2:4] + tasks[5:6] + tasks[7:8]),
+        train=paper().train,
+        parallel=2,
+        eval=EvalConfig(episodes=50, max_steps=120, conditions=("clean",)),
+        convergence_points=1,
+        convergence_episodes=10,
+    )
+
+
 def full() -> ExperimentConfig:
     """The wider study for a many-core machine with a GPU: 5 tasks at 128 px, every gaze-source ablation arm,
     3 seeds x 20,000 steps, the full lighting and noise sweep (evaluate.ROBUSTNESS_CONDITIONS), 50 episodes per task and condition."""
@@ -363,6 +393,7 @@ PRESETS = {
     "smoke": smoke,
     "paper": paper,
     "full": full,
+    "sweep": sweep,
     "libero": libero,
     "libero_smoke": libero_smoke,
 }
