@@ -55,6 +55,7 @@ from tqdm import tqdm
 
 from gazereg.data.store import EpisodeStore
 from gazereg.envs.base import Collector, Env, make_collector
+from gazereg.envs.cache import EnvCache
 from gazereg.envs.collect_config import (
     FINGERPRINT_FIELDS,
     PRESETS,
@@ -69,7 +70,6 @@ from gazereg.runtime.config import parse, save_config
 from gazereg.runtime.io import atomic_write_json, sweep_stale_temps
 from gazereg.runtime.pool import ResumeLog, WorkerPool, available_cores
 
-MAX_WORKER_ENVS = 8  # environments one worker keeps (a LIBERO suite's tasks would not fit in memory)
 SINGLE_THREADED = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 
 
@@ -91,14 +91,10 @@ class CollectWorker:
         self.cfg = cfg  # resolved
         self.collector: Collector = make_collector(cfg.env)
         self.fingerprint = fingerprint(cfg)
-        self.envs: dict[str, Env] = {}
+        self.envs: EnvCache[str] = EnvCache(lambda task: self.collector.make_env(task, self.cfg))
 
     def env(self, task: str) -> Env:
-        if task not in self.envs:
-            if len(self.envs) >= MAX_WORKER_ENVS:
-                self.envs.pop(next(iter(self.envs))).close()
-            self.envs[task] = self.collector.make_env(task, self.cfg)
-        return self.envs[task]
+        return self.envs.get(task)
 
     def run(self, job: RolloutJob) -> dict[str, Any]:
         """Roll out `job`; write the episode to the store if it succeeded. Returns its summary."""
@@ -126,9 +122,7 @@ class CollectWorker:
         return summary
 
     def close(self) -> None:
-        for env in self.envs.values():
-            env.close()
-        self.envs.clear()
+        self.envs.close()
 
 
 # ----- the scheduler ----------------------------------------------------------------------------------------

@@ -37,6 +37,7 @@ from tqdm import tqdm
 
 from gazereg.attention import AttentionProbe
 from gazereg.envs.base import Env, env_class, simulator
+from gazereg.envs.cache import EnvCache
 from gazereg.envs.perturbations import parse_perturbation
 from gazereg.evaluation.config import EvalConfig, parse_checkpoints, presets
 from gazereg.evaluation.summary import format_table, summarize
@@ -48,6 +49,10 @@ from gazereg.runtime.pool import ResumeLog, Worker, WorkerPool, fingerprint_file
 from gazereg.viz.overlay import overlay, write_gif
 
 log = logging.getLogger(__name__)
+
+
+EnvKey = tuple[str, tuple[str, ...], tuple[int, int]]
+"""(task, cameras, image size (H, W)): what one evaluation environment is made for"""
 
 
 @dataclass(frozen=True)
@@ -71,33 +76,31 @@ class RolloutWorker:
         simulator(env)  # UnknownSimulator (a UsageError) names the registered ones
         self.max_steps, self.gl_backend, self.env_kind = max_steps, gl_backend, env
         self.policies: dict[str, Any] = {}
-        self.envs: dict[tuple[str, str, tuple[str, ...], tuple[int, int]], Env] = {}
+        self.envs: EnvCache[EnvKey] = EnvCache(self._make_env)
 
     def policy(self, checkpoint: str) -> Any:
         if checkpoint not in self.policies:
             self.policies[checkpoint] = load_policy(checkpoint)
         return self.policies[checkpoint]
 
-    def env(self, task: str, condition: str, cameras: tuple[str, ...], size: tuple[int, int]) -> Env:
-        key = (task, condition, cameras, size)
-        if key not in self.envs:
-            self.envs[key] = env_class(self.env_kind)(
-                task,
-                cameras=cameras,
-                image_size=size,
-                max_steps=self.max_steps,
-                perturbation=parse_perturbation("" if condition == "clean" else condition),
-                gl_backend=self.gl_backend,
-            )
-        return self.envs[key]
+    def _make_env(self, key: EnvKey) -> Env:
+        task, cameras, size = key
+        return env_class(self.env_kind)(
+            task, cameras=cameras, image_size=size, max_steps=self.max_steps, gl_backend=self.gl_backend
+        )
+
+    def env(self, task: str, cameras: tuple[str, ...], size: tuple[int, int]) -> Env:
+        """The task's environment (one for every condition: each reset applies its job's perturbation)."""
+        return self.envs.get((task, cameras, size))
 
     def run(self, job: Job) -> dict[str, Any]:
         policy = self.policy(job.checkpoint)
         cfg = policy.config
         cams = tuple(cfg.cameras)
         size = tuple(cfg.camera_hw[0]) if cfg.camera_hw else tuple(cfg.image_hw)
-        env = self.env(job.task, job.condition, cams, size)
-        obs, info = env.reset(seed=job.seed)
+        env = self.env(job.task, cams, size)
+        perturbation = parse_perturbation("" if job.condition == "clean" else job.condition)
+        obs, info = env.reset(seed=job.seed, options={"perturbation": perturbation})
         policy.reset()
         frames: list[np.ndarray] = []
         probe_spec = policy.gaze_probe_spec(cams[0]) if job.video else None
@@ -158,9 +161,7 @@ class RolloutWorker:
         return np.concatenate([np.asarray(image), overlay(np.asarray(image), heat)], axis=1)
 
     def close(self) -> None:
-        for env in self.envs.values():
-            env.close()
-        self.envs.clear()
+        self.envs.close()
 
 
 def make_jobs(cfg: EvalConfig, arms: dict[str, Path]) -> list[Job]:
