@@ -4,7 +4,7 @@ from them that is fixed before any result is seen.
     draw_tasks({"easy": 4, "medium": 2, "hard": 2}, exclude=("reach-v3",), seed=0)
 
 The groups are LeRobot 0.6.1's `DIFFICULTY_TO_TASKS` (lerobot/envs/metaworld_config.json; the LeRobot lane's
-tests_lerobot/test_docs.py checks this copy against it): 28 easy, 11 medium, 6 hard and 5 very hard v3 tasks.
+tests_lerobot/test_metaworld_groups.py checks this copy against it): 28 easy, 11 medium, 6 hard and 5 very hard v3 tasks.
 """
 
 from __future__ import annotations
