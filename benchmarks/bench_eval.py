@@ -10,8 +10,12 @@ as `gazereg eval` uses them; setup seeds from 1000, a new episode when one ends)
   through `select_action(obs, obs["instruction"])`, as `RolloutWorker.run` does; raw and closed-loop steps are
   interleaved over rounds, and resets are timed apart (the expert ends episodes early by succeeding, the
   untrained policy runs to max_steps), so `eval_over_raw` compares steps alone;
-- `RolloutWorker.run` itself on that policy saved as a checkpoint (whole episodes, resets included);
+- `RolloutWorker.run` itself on that policy saved as a checkpoint (whole episodes, resets included), one
+  episode at a time and `EvalConfig.batch` episodes in lockstep (the untrained policy never succeeds, so
+  every episode of a batch runs to max_steps: the best case for lockstep);
 - `select_action` alone per call on a real observation, float32 and under bf16 autocast;
+- `select_action` on a batch of B observations (as one worker stepping B environments in lockstep would
+  call it), ms per environment for B in --batches, float32 and bf16 autocast, and the ratio to batch 1;
 - physics alone (no camera) for scale.
 """
 
@@ -30,7 +34,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from _timing import machine_info
+from _timing import machine_info, run_times
 
 from gazereg.envs import Expert
 from gazereg.envs.render import select_gl_backend
@@ -110,15 +114,43 @@ def select_action_ms(policy: VLAPolicy, obs: dict, rounds: int, calls: int) -> d
     return {k: round(1000 * statistics.median(v), 3) for k, v in times.items()}
 
 
-def rollout_worker(worker: RolloutWorker, ckpt: Path, task: str, episodes: int) -> dict[str, float]:
-    """`RolloutWorker.run` over whole episodes (policy already loaded): env steps/s with resets."""
-    worker.policy(str(ckpt))  # loaded once per worker, outside the timing
+def batched_ms_per_env(
+    policy: VLAPolicy, obs: dict, batches: tuple[int, ...], rounds: int, calls: int
+) -> dict[str, dict[str, float]]:
+    """Median ms per environment of one `select_action` call on B stacked copies of `obs`, per precision."""
+    out: dict[str, dict[str, float]] = {"float32": {}, "bf16_autocast": {}}
+    for mode, per_b in out.items():
+        amp = mode == "bf16_autocast"
+        for b in batches:
+            stacked = {
+                "state": np.stack([obs["state"]] * b),
+                "images": {CAMERA: np.stack([obs["images"][CAMERA]] * b)},
+            }
+            policy.reset()
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=amp):
+                times = run_times(
+                    lambda s=stacked: policy.select_action(s, obs["instruction"]), rounds * calls, 2
+                )
+            per_b[str(b)] = round(1000 * statistics.median(times) / b, 3)
+    return out
+
+
+def rollout_worker(
+    worker: RolloutWorker, ckpt: Path, task: str, episodes: int, batch: int
+) -> dict[str, float]:
+    """`RolloutWorker.run` over whole episodes, `batch` at a time in lockstep (policy already loaded): env
+    steps/s with resets."""
+    worker.policy(str(ckpt))  # loaded once per worker, outside the timing, and the environments made
+    for slot in range(batch):
+        worker.env(task, (CAMERA,), SIZE, slot)
+    jobs = [
+        Job("bench", str(ckpt), task, "clean", EVAL_DEFAULTS["seed_start"] + i, None) for i in range(episodes)
+    ]
     steps, t0 = 0, time.perf_counter()
-    for i in range(episodes):
-        job = Job("bench", str(ckpt), task, "clean", EVAL_DEFAULTS["seed_start"] + i, None)
-        steps += worker.run(job)["length"]
+    for i in range(0, episodes, batch):
+        steps += sum(r["length"] for r in worker.run(jobs[i : i + batch]))
     wall = time.perf_counter() - t0
-    return {"steps_per_s": round(steps / wall, 1), "episodes": episodes, "steps": steps}
+    return {"steps_per_s": round(steps / wall, 1), "episodes": episodes, "steps": steps, "batch": batch}
 
 
 def physics_only(task: str, steps: int) -> float:
@@ -164,20 +196,24 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--calls", type=int, default=60, help="select_action calls per precision per round")
     ap.add_argument("--episodes", type=int, default=2, help="RolloutWorker.run episodes")
+    ap.add_argument(
+        "--batches", type=int, nargs="+", default=[1, 4, 8, 16], help="batched select_action sizes"
+    )
     args = ap.parse_args()
     backend = select_gl_backend()
     os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core, before any GL context spawns threads
     max_steps = EVAL_DEFAULTS["max_steps"]
     raw_worker = RolloutWorker(max_steps, backend)  # sets torch to 1 thread, as in evaluation
-    worker = RolloutWorker(max_steps, backend)
+    batch = EVAL_DEFAULTS["batch"]
+    worker = RolloutWorker(max_steps, backend, batch=batch)
     out: dict[str, Any] = {
         "machine": machine_info(gl_backend=backend, pinned_cores=sorted(os.sched_getaffinity(0))),
         "task": args.task,
         "camera": CAMERA,
     }
     out.update(image_hw=SIZE, max_steps=max_steps)
-    raw_env = raw_worker.env(args.task, "clean", (CAMERA,), SIZE)
-    env = worker.env(args.task, "clean", (CAMERA,), SIZE)
+    raw_env = raw_worker.env(args.task, (CAMERA,), SIZE)
+    env = worker.env(args.task, (CAMERA,), SIZE)
     obs, _ = env.reset(seed=0)
     policy = make_policy(obs["instruction"], obs["state"].shape[-1], env.action_space.shape[-1])
     policy.eval()
@@ -186,9 +222,20 @@ def main() -> int:
     closed = compare_loops(out, raw_env, env, policy, args)
     out["select_action_ms"] = sa = select_action_ms(policy, closed.obs, args.rounds, args.calls)
     out["select_action_bf16_over_fp32"] = round(sa["bf16_autocast"] / sa["float32"], 3)
+    out["batched_select_action_ms_per_env"] = per_env = batched_ms_per_env(
+        policy, closed.obs, tuple(args.batches), args.rounds, args.calls // 4 or 1
+    )
+    one = per_env["float32"][str(args.batches[0])]
+    out["batched_ms_per_env_over_fp32_batch_first"] = {
+        mode: {b: round(ms / one, 3) for b, ms in v.items()} for mode, v in per_env.items()
+    }
     with tempfile.TemporaryDirectory() as tmp:
         ckpt = policy.save_pretrained(Path(tmp) / "ckpt")
-        out["rollout_worker_run"] = rw = rollout_worker(worker, ckpt, args.task, args.episodes)
+        out["rollout_worker_run"] = rw = rollout_worker(worker, ckpt, args.task, args.episodes, 1)
+        out["rollout_worker_run_batched"] = rb = rollout_worker(
+            worker, ckpt, args.task, batch * args.episodes, batch
+        )
+    out["rollout_worker_batched_over_single"] = round(rb["steps_per_s"] / rw["steps_per_s"], 3)
     raw_sps = out["raw_expert_render"]["steps_per_s_with_resets"]
     out["rollout_worker_over_raw_with_resets"] = round(rw["steps_per_s"] / raw_sps, 3)
     out["physics_only_steps_per_s"] = physics_only(args.task, args.steps * args.rounds)

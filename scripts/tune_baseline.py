@@ -39,6 +39,7 @@ DOCS = ROOT / "docs" / "tuning"
 BASE = [
     "--preset", "quick", "--arms", "baseline", "--train-seeds", "0", "1", "--train.steps", "8000",
     "--eval.seed-start", "1300", "--eval.episodes", "25", "--convergence-points", "1", "--heldout-per-task", "1",
+    "--eval.batch", "1",  # episode by episode, as the first candidates ran (before lockstep evaluation)
 ]  # fmt: skip
 CANDIDATES: dict[str, tuple[str, list[str]]] = {
     "default": ("today's recipe: 96 px, width 128, depth 4, chunk 4, lr 1e-3, shift 4, no EMA", []),

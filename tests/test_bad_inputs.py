@@ -56,6 +56,7 @@ BAD_INPUTS = [
     (["eval", "--episodes", "0"], 2, "--episodes must be"),
     (["eval", "--max-steps", "0"], 2, "--max-steps must be"),
     (["eval", "--workers", "0"], 2, "--workers must be"),
+    (["eval", "--batch", "0"], 2, "--batch must be"),
     (["eval", "--videos", "-1"], 2, "--videos must be"),
     (["eval", "--seed-start", "-1"], 2, "--seed-start must be"),
     (["eval", "--conditions", "clean", "fog:0.5"], 2, "unknown perturbation 'fog'"),

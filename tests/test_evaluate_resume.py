@@ -18,18 +18,21 @@ class FakeWorker:
     def __init__(self, calls, fail_on):
         self.calls, self.fail_on = calls, fail_on
 
-    def run(self, job):
+    def run(self, jobs):
+        (job,) = jobs  # batch 1
         if job.seed in self.fail_on:
             raise KeyboardInterrupt("killed")
         self.calls.append((job.arm, job.seed))
-        return {
-            "arm": job.arm,
-            "task": job.task,
-            "condition": job.condition,
-            "seed": job.seed,
-            "success": job.seed % 2 == 0,
-            "length": 7,
-        }
+        return [
+            {
+                "arm": job.arm,
+                "task": job.task,
+                "condition": job.condition,
+                "seed": job.seed,
+                "success": job.seed % 2 == 0,
+                "length": 7,
+            }
+        ]
 
     def close(self):
         pass
@@ -43,7 +46,7 @@ def fake_rollouts():
 
 
 def _run(jobs, max_steps, log_path, make_worker):
-    cfg = EvalConfig(max_steps=max_steps, workers=1)
+    cfg = EvalConfig(max_steps=max_steps, workers=1, batch=1)
     return ev.run_jobs(jobs, cfg, progress=False, log_path=log_path, make_worker=make_worker)
 
 
@@ -119,7 +122,7 @@ def test_evaluation_sweeps_what_killed_writers_left_in_its_folder(tmp_path, monk
     live.write_text("x")
     worker = FakeWorker([], set())
     monkeypatch.setattr(ev, "RolloutWorker", lambda *args: worker)
-    cfg = EvalConfig(checkpoints=(f"a={ckpt}",), episodes=2, workers=1, videos=0, out=out)
+    cfg = EvalConfig(checkpoints=(f"a={ckpt}",), episodes=2, workers=1, batch=1, videos=0, out=out)
     info = ev.evaluate(cfg, progress=False)
     assert [e["seed"] for e in info["episodes"]] == [1000, 1001]
     assert not any(path.exists() for path in stale) and live.exists()
@@ -131,6 +134,7 @@ def test_evaluation_sweeps_what_killed_writers_left_in_its_folder(tmp_path, monk
         ({"episodes": 0}, "--episodes must be an integer >= 1, got 0"),
         ({"max_steps": -1}, "--max-steps must be an integer >= 1, got -1"),
         ({"workers": 0}, "--workers must be"),
+        ({"batch": 0}, "--batch must be an integer >= 1, got 0"),
         ({"videos": -1}, "--videos must be"),
         ({"seed_start": -5}, "--seed-start must be"),
         ({"tasks": ()}, "--tasks is empty"),

@@ -49,8 +49,14 @@ class ImagePolicy:
         pass
 
     def select_action(self, obs, instruction):
-        level = float(np.asarray(obs["images"]["corner2"], dtype=np.float64).mean()) / 255.0
-        return np.array([level - 0.3, 0.5 - level, 0.0, 0.0], dtype=np.float32)
+        """(n, 4) actions for a batch of n observations; (4,) for one."""
+        images = np.asarray(obs["images"]["corner2"], dtype=np.float64)
+        one = images.ndim == 3
+        batch = images[None] if one else images
+        level = batch.reshape(len(batch), -1).mean(1) / 255.0
+        zeros = np.zeros_like(level)
+        actions = np.stack([level - 0.3, 0.5 - level, zeros, zeros], 1).astype(np.float32)
+        return actions[0] if one else actions
 
 
 def test_one_environment_serves_every_condition_as_fresh_ones_would(gl_backend):
@@ -65,11 +71,31 @@ def test_one_environment_serves_every_condition_as_fresh_ones_would(gl_backend):
         return Job("a", "ckpt", "reach-v3", condition, seed, None)
 
     shared = worker()
-    runs = [shared.run(job(c)) for c in ("clean", "dim:0.7", "gaussian_noise:0.5", "clean")]
+    runs = [shared.run([job(c)])[0] for c in ("clean", "dim:0.7", "gaussian_noise:0.5", "clean")]
     assert len(shared.envs) == 1
-    fresh = [worker().run(job(c)) for c in ("clean", "dim:0.7", "gaussian_noise:0.5")]
+    fresh = [worker().run([job(c)])[0] for c in ("clean", "dim:0.7", "gaussian_noise:0.5")]
     assert runs[:3] == fresh and runs[3] == runs[0]
     assert runs[1]["final_distance"] != runs[0]["final_distance"]  # the perturbation reached the images
     assert runs[2]["final_distance"] != runs[0]["final_distance"]
     shared.close()
     assert len(shared.envs) == 0
+
+
+def test_episodes_in_lockstep_are_the_episodes_run_alone(gl_backend):
+    """A batch of episodes (different setups, so they end at different steps) stepped together with one
+    policy call per step gives each episode's record as a rollout of its own."""
+    from gazereg.evaluation.rollout import Job, RolloutWorker
+
+    def worker(batch):
+        w = RolloutWorker(max_steps=40, gl_backend=gl_backend, batch=batch)
+        w.policy = lambda checkpoint: ImagePolicy()
+        return w
+
+    jobs = [Job("a", "ckpt", "reach-v3", "dim:0.5", seed, None) for seed in (1000, 1001, 1002)]
+    together = worker(3).run(jobs)
+    alone = [worker(1).run([j])[0] for j in jobs]
+    assert together == alone
+    assert [r["seed"] for r in together] == [1000, 1001, 1002]
+    assert len({r["final_distance"] for r in together}) == 3  # three different episodes
+    with pytest.raises(ValueError, match="share their checkpoint, task and condition"):
+        worker(2).run([jobs[0], Job("a", "ckpt", "reach-v3", "clean", 1003, None)])

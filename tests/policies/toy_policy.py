@@ -168,10 +168,13 @@ class ToyPolicy(Policy):
         generator: torch.Generator | None = None,
     ) -> np.ndarray:
         images = observation.get("images", observation)
-        batch = {
-            f"image.{cam}": torch.as_tensor(np.asarray(images[cam]))[None] for cam in self.config.cameras
-        }
-        batch["state"] = torch.as_tensor(np.asarray(observation["state"], dtype=np.float32))[None]
-        batch["text_ids"], _ = self.tokenizer(instruction)
-        action = self.predict(batch)[0, 0] * self.action_std + self.action_mean
+        state = torch.as_tensor(np.asarray(observation["state"], dtype=np.float32))
+        batched = state.ndim == 2
+        add = (lambda t: t) if batched else (lambda t: t[None])
+        batch = {f"image.{cam}": add(torch.as_tensor(np.asarray(images[cam]))) for cam in self.config.cameras}
+        batch["state"] = add(state)
+        texts = [instruction] * batch["state"].shape[0] if isinstance(instruction, str) else list(instruction)
+        batch["text_ids"], _ = self.tokenizer(texts)
+        action = self.predict(batch)[:, 0] * self.action_std + self.action_mean
+        action = action if batched else action[0]
         return action.cpu().numpy().astype(np.float32)

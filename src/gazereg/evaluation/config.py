@@ -49,6 +49,10 @@ class EvalConfig(Validated):
     max_steps: int = 150
     workers: int = 2
     """worker processes (one per core); 1 runs in this process"""
+    batch: int = 8
+    """environments one worker steps in lockstep with one batched policy call per step (episodes of the same
+    checkpoint, task and condition; filmed episodes run alone); 1 steps one episode at a time. The speed-up is
+    measured by benchmarks/bench_eval.py (`rollout_worker_batched_over_single`, docs/benchmarks/)"""
     videos: int = 1
     """episodes per (arm, task, condition) saved as GIFs with the attention overlay (0: none)"""
     out: Path = Path("runs/eval")
@@ -67,6 +71,7 @@ class EvalConfig(Validated):
             ("episodes", 1),
             ("max_steps", 1),
             ("workers", 1),
+            ("batch", 1),
             ("videos", 0),
             ("seed_start", 0),
         ):
@@ -111,6 +116,7 @@ def presets() -> dict[str, Callable[[], EvalConfig]]:
             seed_start=25,
             max_steps=220,
             workers=os.cpu_count() or 2,
+            batch=1,  # a LIBERO environment holds ~1.2 GB (gazereg.envs.cache) and rendering dominates its step
         ),
         "paper": lambda: EvalConfig(
             episodes=50,

@@ -9,7 +9,8 @@ one task), so the default seed_start (1000) is initial state 0, where demonstrat
 `--preset libero` evaluates LIBERO-Spatial task by task on initial states 25..49 instead. Every checkpoint ("arm") is rolled out on the same list of setup seeds per task and under every condition
 (a perturbation spec, `gazereg.envs.perturbations`), so arms form pairs seed by seed. Evaluation seeds start at
 `seed_start` (default 1000, i.e. Meta-World benchmark seed 20's setups), away from the setups demonstrations
-are collected on (seeds from 0). One worker process per core; each loads each checkpoint once.
+are collected on (seeds from 0). One worker process per core; each loads each checkpoint once and steps
+`--batch` environments of one checkpoint, task and condition in lockstep, one batched policy call per step.
 Writes `eval_info.json` (config, seeds actually used, every episode's outcome -- success, length and, where
 the simulator measures it, the closest and final distance of the object (or hand) to its target in metres --
 and summaries) and GIF videos
@@ -26,8 +27,8 @@ import functools
 import json
 import logging
 import sys
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -36,8 +37,9 @@ import torch
 from tqdm import tqdm
 
 from gazereg.attention import AttentionProbe
+from gazereg.attention.probe import ProbeSpec
 from gazereg.envs.base import Env, env_class, simulator
-from gazereg.envs.cache import EnvCache
+from gazereg.envs.cache import WORKER_ENVS, EnvCache
 from gazereg.envs.perturbations import parse_perturbation
 from gazereg.evaluation.config import EvalConfig, parse_checkpoints, presets
 from gazereg.evaluation.summary import format_table, summarize
@@ -51,8 +53,9 @@ from gazereg.viz.overlay import overlay, write_gif
 log = logging.getLogger(__name__)
 
 
-EnvKey = tuple[str, tuple[str, ...], tuple[int, int]]
-"""(task, cameras, image size (H, W)): what one evaluation environment is made for"""
+EnvKey = tuple[str, tuple[str, ...], tuple[int, int], int]
+"""(task, cameras, image size (H, W), slot): what one evaluation environment is made for; slot k is the
+environment of the k-th episode of a lockstep batch"""
 
 
 @dataclass(frozen=True)
@@ -65,18 +68,60 @@ class Job:
     video: str | None  # GIF path, or None
 
 
+@dataclass
+class Episode:
+    """One rollout's progress: its outcome so far and the simulator's object (or hand) to target distances."""
+
+    job: Job
+    distances: list[float]
+    success: bool = False
+    length: int = 0
+    done: bool = False
+    video: str | None = None
+
+    def record(self, step: int, info: dict[str, Any], ended: bool) -> None:
+        self.success = self.success or bool(info["success"])
+        if "obj_to_target" in info:
+            self.distances.append(float(info["obj_to_target"]))
+        self.length, self.done = step, ended
+
+    def result(self) -> dict[str, Any]:
+        j = self.job
+        out = {"arm": j.arm, "task": j.task, "condition": j.condition, "seed": j.seed}
+        out.update(success=self.success, length=self.length)
+        if (
+            self.distances
+        ):  # the simulator's own progress measure (Meta-World: object, or hand, to target; metres)
+            out["min_distance"] = min(self.distances)
+            out["final_distance"] = self.distances[-1]
+        if self.video:
+            out["video"] = self.video
+        return out
+
+
+@dataclass
+class Film:
+    """A filmed rollout's frames (camera image beside the attention over it) and its latest attention."""
+
+    spec: ProbeSpec
+    camera: str
+    frames: list[np.ndarray] = field(default_factory=list)
+    attention: np.ndarray | None = None
+
+
 class RolloutWorker:
-    """Per-process state: loaded policies and environments, reused across jobs.
+    """Per-process state: loaded policies and environments, reused across jobs (`batch` environments per task,
+    kept for two tasks at a time: jobs alternate between tasks).
 
     A job's record: arm, task, condition, seed, success, length (steps) and, where the simulator measures it,
     min_distance and final_distance (metres, object or hand to target), video (the GIF's path) if filmed."""
 
-    def __init__(self, max_steps: int, gl_backend: str | None, env: str = "metaworld"):
+    def __init__(self, max_steps: int, gl_backend: str | None, env: str = "metaworld", batch: int = 1):
         torch.set_num_threads(1)
         simulator(env)  # UnknownSimulator (a UsageError) names the registered ones
         self.max_steps, self.gl_backend, self.env_kind = max_steps, gl_backend, env
         self.policies: dict[str, Any] = {}
-        self.envs: EnvCache[EnvKey] = EnvCache(self._make_env)
+        self.envs: EnvCache[EnvKey] = EnvCache(self._make_env, size=max(WORKER_ENVS, 2 * batch))
 
     def policy(self, checkpoint: str) -> Any:
         if checkpoint not in self.policies:
@@ -84,55 +129,65 @@ class RolloutWorker:
         return self.policies[checkpoint]
 
     def _make_env(self, key: EnvKey) -> Env:
-        task, cameras, size = key
+        task, cameras, size, _slot = key
         return env_class(self.env_kind)(
             task, cameras=cameras, image_size=size, max_steps=self.max_steps, gl_backend=self.gl_backend
         )
 
-    def env(self, task: str, cameras: tuple[str, ...], size: tuple[int, int]) -> Env:
-        """The task's environment (one for every condition: each reset applies its job's perturbation)."""
-        return self.envs.get((task, cameras, size))
+    def env(self, task: str, cameras: tuple[str, ...], size: tuple[int, int], slot: int = 0) -> Env:
+        """The task's environment `slot` (one for every condition: each reset applies its job's perturbation)."""
+        return self.envs.get((task, cameras, size, slot))
 
-    def run(self, job: Job) -> dict[str, Any]:
-        policy = self.policy(job.checkpoint)
+    def run(self, jobs: Sequence[Job]) -> list[dict[str, Any]]:
+        """Roll out `jobs` (one checkpoint, task and condition; see `group_jobs`) in lockstep, one environment
+        each and one batched `select_action` per step; their records in order. A filmed job runs alone."""
+        first = jobs[0]
+        if any(
+            (j.checkpoint, j.task, j.condition) != (first.checkpoint, first.task, first.condition)
+            for j in jobs
+        ):
+            raise ValueError("jobs rolled out together must share their checkpoint, task and condition")
+        if len(jobs) > 1 and any(j.video for j in jobs):
+            raise ValueError("a filmed episode is rolled out alone")
+        policy = self.policy(first.checkpoint)
         cfg = policy.config
         cams = tuple(cfg.cameras)
         size = tuple(cfg.camera_hw[0]) if cfg.camera_hw else tuple(cfg.image_hw)
-        env = self.env(job.task, cams, size)
-        perturbation = parse_perturbation("" if job.condition == "clean" else job.condition)
-        obs, info = env.reset(seed=job.seed, options={"perturbation": perturbation})
+        envs = [self.env(first.task, cams, size, slot) for slot in range(len(jobs))]
+        perturbation = parse_perturbation("" if first.condition == "clean" else first.condition)
+        obs, episodes = [], []
+        for env, job in zip(envs, jobs, strict=True):
+            o, info = env.reset(seed=job.seed, options={"perturbation": perturbation})
+            obs.append(o)
+            episodes.append(Episode(job, [info["obj_to_target"]] if "obj_to_target" in info else []))
         policy.reset()
-        frames: list[np.ndarray] = []
-        probe_spec = policy.gaze_probe_spec(cams[0]) if job.video else None
-        attn = None
-        success, steps = False, 0
-        distances = [info["obj_to_target"]] if "obj_to_target" in info else []
-        for steps in range(1, self.max_steps + 1):  # noqa: B007 (steps is the episode length)
-            if probe_spec is not None:
-                action, attn = self._act_filmed(policy, probe_spec, obs, cams[0], attn, frames)
-            else:
-                action = policy.select_action(obs, obs["instruction"])
-            obs, _, terminated, truncated, info = env.step(action)
-            success = success or bool(info["success"])
-            if "obj_to_target" in info:
-                distances.append(float(info["obj_to_target"]))
-            if terminated or truncated:
+        film = Film(policy.gaze_probe_spec(cams[0]), cams[0]) if first.video else None
+        for step in range(1, self.max_steps + 1):
+            actions = self._act(policy, obs, film)
+            for i, (env, ep) in enumerate(zip(envs, episodes, strict=True)):
+                if ep.done:  # finished episodes stay in the batch (a fixed batch), their actions unused
+                    continue
+                obs[i], _, terminated, truncated, info = env.step(actions[i])
+                ep.record(step, info, terminated or truncated)
+            if all(ep.done for ep in episodes):
                 break
-        out = {
-            "arm": job.arm,
-            "task": job.task,
-            "condition": job.condition,
-            "seed": job.seed,
-            "success": success,
-            "length": steps,
-        }
-        if distances:  # the simulator's own progress measure (Meta-World: object, or hand, to target; metres)
-            out["min_distance"] = min(distances)
-            out["final_distance"] = distances[-1]
-        if job.video and frames:
-            write_gif(job.video, frames)
-            out["video"] = job.video
-        return out
+        if film is not None and film.frames:
+            write_gif(first.video, film.frames)
+            episodes[0].video = first.video
+        return [ep.result() for ep in episodes]
+
+    def _act(self, policy: Any, obs: list[dict[str, Any]], film: Film | None) -> np.ndarray:
+        """(n, A) actions for the n observations; a filmed episode's frame (attention overlaid) is kept."""
+        if film is None:
+            batch = {
+                "state": np.stack([o["state"] for o in obs]),
+                "images": {c: np.stack([o["images"][c] for o in obs]) for c in obs[0]["images"]},
+            }
+            return policy.select_action(batch, [o["instruction"] for o in obs])
+        action, film.attention = self._act_filmed(
+            policy, film.spec, obs[0], film.camera, film.attention, film.frames
+        )
+        return action[None]
 
     def _act_filmed(
         self,
@@ -180,6 +235,27 @@ def make_jobs(cfg: EvalConfig, arms: dict[str, Path]) -> list[Job]:
     return jobs
 
 
+def group_jobs(jobs: Sequence[Job], batch: int) -> list[tuple[int, ...]]:
+    """Indices of `jobs` rolled out together: runs of consecutive jobs of one checkpoint, task and condition,
+    at most `batch` each; a filmed job alone. Depends on the job list only, never on what a resume skips, so a
+    rollout always runs in the same batch (batched matmuls round differently from single ones)."""
+    groups: list[list[int]] = []
+    for i, job in enumerate(jobs):
+        last = jobs[groups[-1][-1]] if groups else None
+        joins = (
+            last is not None
+            and not job.video
+            and not last.video
+            and len(groups[-1]) < batch
+            and (last.checkpoint, last.task, last.condition) == (job.checkpoint, job.task, job.condition)
+        )
+        if joins:
+            groups[-1].append(i)
+        else:
+            groups.append([i])
+    return [tuple(g) for g in groups]
+
+
 def job_key(job: Job, max_steps: int, env: str, prints: dict[str, str]) -> str:
     """What makes two rollouts the same: a logged record is reused only for an identical job.
     `prints`: each checkpoint's `fingerprint_files`."""
@@ -193,34 +269,40 @@ def run_jobs(
     cfg: EvalConfig,
     progress: bool = True,
     log_path: Path | None = None,
-    make_worker: Callable[[], Worker[Job, dict[str, Any]]] | None = None,
+    make_worker: Callable[[], Worker[Sequence[Job], list[dict[str, Any]]]] | None = None,
 ) -> list[dict[str, Any]]:
-    """Run rollouts in `cfg.workers` processes (one when there is at most one rollout to run).
+    """Run rollouts in `cfg.workers` processes (one when there is at most one batch to run), `cfg.batch`
+    environments in lockstep per worker (`group_jobs`).
 
-    With `log_path`, every finished rollout is appended to that resume log and rollouts already in it are not
-    run again, so a killed evaluation resumes where it stopped. Records come back in job order.
-    `make_worker`: builds a process's worker (default: a `RolloutWorker` with cfg's max_steps, gl_backend, env)."""
+    With `log_path`, every finished rollout is appended to that resume log and a batch whose rollouts are all in
+    it is not run again (one with any missing runs whole), so a killed evaluation resumes where it stopped.
+    Records come back in job order.
+    `make_worker`: builds a process's worker (default: a `RolloutWorker` with cfg's max_steps, gl_backend, env, batch)."""
     prints = {c: fingerprint_files(c) for c in {j.checkpoint for j in jobs}}
     keys = [job_key(j, cfg.max_steps, cfg.env, prints) for j in jobs]
     episodes = ResumeLog(log_path) if log_path is not None else None
     done = episodes.read() if episodes is not None else {}
-    todo = [i for i, k in enumerate(keys) if k not in done]
-    if len(todo) < len(jobs):
-        log.info("resuming evaluation: %d of %d rollouts already logged", len(jobs) - len(todo), len(jobs))
+    todo = [g for g in group_jobs(jobs, cfg.batch) if any(keys[i] not in done for i in g)]
+    n_todo = sum(len(g) for g in todo)
+    if n_todo < len(jobs):
+        log.info("resuming evaluation: %d of %d rollouts already logged", len(jobs) - n_todo, len(jobs))
     results: dict[int, dict[str, Any]] = {i: done[k] for i, k in enumerate(keys) if k in done}
-    make_worker = make_worker or functools.partial(RolloutWorker, cfg.max_steps, cfg.gl_backend, cfg.env)
+    make_worker = make_worker or functools.partial(
+        RolloutWorker, cfg.max_steps, cfg.gl_backend, cfg.env, cfg.batch
+    )
     workers = 1 if len(todo) <= 1 else min(cfg.workers, len(todo))
     with (
         WorkerPool(make_worker, workers) as pool,
-        tqdm(total=len(todo), desc="eval", disable=not progress) as bar,
+        tqdm(total=n_todo, desc="eval", disable=not progress) as bar,
     ):
-        for i in todo:
-            pool.submit(jobs[i], tag=i)
-        for i, record in pool.results():
-            results[i] = record
-            if episodes is not None:
-                episodes.append(keys[i], record)
-            bar.update()
+        for g in todo:
+            pool.submit([jobs[i] for i in g], tag=g)
+        for g, records in pool.results():
+            for i, record in zip(g, records, strict=True):
+                results[i] = record
+                if episodes is not None:
+                    episodes.append(keys[i], record)
+            bar.update(len(g))
     return [results[i] for i in range(len(jobs))]
 
 

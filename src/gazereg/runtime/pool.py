@@ -1,8 +1,8 @@
 """What long simulation jobs share: one worker pool, one resume log, one fingerprint.
 
-    with WorkerPool(functools.partial(RolloutWorker, 150, None, "metaworld"), workers=4) as pool:
-        for i, job in enumerate(jobs):
-            pool.submit(job, tag=i)
+    with WorkerPool(functools.partial(RolloutWorker, 150, None, "metaworld", 8), workers=4) as pool:
+        for i, group in enumerate(groups):            # a RolloutWorker job: episodes run in lockstep
+            pool.submit(group, tag=i)
         for tag, result in pool.results():        # as jobs finish; more may be submitted meanwhile
             log.append(keys[tag], result)
 
