@@ -17,6 +17,10 @@ Protocol (fixed before any result was seen):
   how much each was expected to matter; a candidate is one `gazereg experiment` run folder, resumable.
 - Choice: the candidate with the most validation successes over both seeds and tasks. The gaze arm then uses
   the chosen recipe unchanged, tuning at most the gaze weight and layers on the same validation setups.
+- Round 2 (`--round 2`, stated on 2026-11-24 with 4 of the 8 one-factor results known and before the other 4):
+  once every one-factor candidate has run, `combined` applies together every change whose candidate had more
+  validation successes than `default`, in the order above, on the same budget and setups (none when fewer
+  than two qualify). The choice is then the best of all candidates, `combined` included.
 Each finished candidate writes docs/tuning/baseline/<name>.json (its command, wall time and validation
 successes per task and seed); docs/tuning/baseline.md is the table of every finished candidate.
 """
@@ -54,9 +58,41 @@ CANDIDATES: dict[str, tuple[str, list[str]]] = {
 }  # fmt: skip
 
 
-def command(name: str) -> list[str]:
+def result_path(name: str) -> Path:
+    return DOCS / "baseline" / f"{name}.json"
+
+
+def successes(name: str) -> int:
+    """Validation successes of a finished candidate, over both seeds and tasks."""
+    val = json.loads(result_path(name).read_text())["validation"]
+    return sum(c[0] for seeds in val.values() for c in seeds.values())
+
+
+def combined() -> tuple[str, list[str]] | None:
+    """Round 2's candidate (module docstring): (change, overrides), or None when fewer than two one-factor
+    changes beat `default`. SystemExit naming the one-factor candidates not yet run."""
+    missing = [name for name in CANDIDATES if not result_path(name).exists()]
+    if missing:
+        raise SystemExit(f"round 2 needs every one-factor candidate; not run yet: {', '.join(missing)}")
+    winners = [n for n in CANDIDATES if n != "default" and successes(n) > successes("default")]
+    if len(winners) < 2:
+        return None
+    return "round 2: " + " + ".join(winners), [arg for n in winners for arg in CANDIDATES[n][1]]
+
+
+def all_candidates() -> dict[str, tuple[str, list[str]]]:
+    """Every candidate whose definition is known now: round 1's, and `combined` once round 2 has run or can."""
+    out = dict(CANDIDATES)
+    if result_path("combined").exists():
+        r = json.loads(result_path("combined").read_text())
+        out["combined"] = (r["change"], r["overrides"])
+    return out
+
+
+def command(name: str, overrides: list[str] | None = None) -> list[str]:
     """The `gazereg experiment` command line of candidate `name` (its overrides after the shared ones)."""
-    return ["gazereg", "experiment", *BASE, *CANDIDATES[name][1], "--out", f"runs/tune/{name}"]
+    extra = CANDIDATES[name][1] if overrides is None else overrides
+    return ["gazereg", "experiment", *BASE, *extra, "--out", f"runs/tune/{name}"]
 
 
 def validation_successes(episodes: list[dict[str, Any]]) -> dict[str, dict[str, list[int]]]:
@@ -72,9 +108,9 @@ def validation_successes(episodes: list[dict[str, Any]]) -> dict[str, dict[str, 
     return out
 
 
-def run_candidate(name: str) -> Path:
+def run_candidate(name: str, change: str, overrides: list[str]) -> Path:
     """Run (or resume) candidate `name`; write and return docs/tuning/baseline/<name>.json."""
-    cmd = command(name)
+    cmd = command(name, overrides)
     t0 = time.time()
     subprocess.run([sys.executable, "-m", "gazereg.cli", *cmd[1:]], cwd=ROOT, check=True)
     run = ROOT / "runs" / "tune" / name
@@ -82,7 +118,8 @@ def run_candidate(name: str) -> Path:
     episodes = json.loads((run / "eval" / "eval_info.json").read_text())["episodes"]
     result = {
         "candidate": name,
-        "change": CANDIDATES[name][0],
+        "change": change,
+        "overrides": overrides,
         "command": shlex.join(cmd),
         "wall_s_this_call": round(time.time() - t0, 1),
         "stage_seconds": report["stage_times_s"],
@@ -91,7 +128,7 @@ def run_candidate(name: str) -> Path:
         "date": report["date"],
         "validation": validation_successes(episodes),
     }
-    path = DOCS / "baseline" / f"{name}.json"
+    path = result_path(name)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(result, indent=1) + "\n")
@@ -102,11 +139,10 @@ def run_candidate(name: str) -> Path:
 def table() -> str:
     """docs/tuning/baseline.md: every finished candidate's validation successes, best first."""
     rows = []
-    for name in CANDIDATES:
-        path = DOCS / "baseline" / f"{name}.json"
-        if not path.exists():
+    for name in all_candidates():
+        if not result_path(name).exists():
             continue
-        r = json.loads(path.read_text())
+        r = json.loads(result_path(name).read_text())
         val = r["validation"]
         total = sum(c[0] for t in val.values() for c in t.values())
         n = sum(c[1] for t in val.values() for c in t.values())
@@ -133,7 +169,7 @@ def table() -> str:
     ]
     done = {row[2] for row in rows}
     todo = [name for name in CANDIDATES if name not in done]
-    lines += ["", f"Not run yet: {', '.join(todo)}." if todo else "Every candidate has run."]
+    lines += ["", f"Not run yet: {', '.join(todo)}." if todo else "Every one-factor candidate has run."]
     return "\n".join(lines) + "\n"
 
 
@@ -141,14 +177,25 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--only", nargs="+", choices=list(CANDIDATES), help="run these candidates (default: all)")
     p.add_argument("--table", action="store_true", help="only rewrite docs/tuning/baseline.md")
+    p.add_argument(
+        "--round", type=int, choices=(1, 2), default=1, help="2: the combined candidate (docstring)"
+    )
     a = p.parse_args(argv)
-    if not a.table:
-        for name in a.only or list(CANDIDATES):
-            if (DOCS / "baseline" / f"{name}.json").exists() and not a.only:
-                continue
-            print(f"candidate {name}: {shlex.join(command(name))}", flush=True)
-            run_candidate(name)
-            (DOCS / "baseline.md").write_text(table())
+    todo: dict[str, tuple[str, list[str]]] = {}
+    if a.round == 2 and not a.table:
+        c = combined()
+        if c is None:
+            print(
+                "round 2: fewer than two one-factor changes beat default; the best single candidate is the choice"
+            )
+        else:
+            todo["combined"] = c
+    elif not a.table:
+        todo = {n: CANDIDATES[n] for n in a.only or CANDIDATES if a.only or not result_path(n).exists()}
+    for name, (change, overrides) in todo.items():
+        print(f"candidate {name}: {shlex.join(command(name, overrides))}", flush=True)
+        run_candidate(name, change, overrides)
+        (DOCS / "baseline.md").write_text(table())
     DOCS.mkdir(parents=True, exist_ok=True)
     (DOCS / "baseline.md").write_text(table())
     print(table())

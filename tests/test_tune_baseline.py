@@ -1,0 +1,57 @@
+"""The baseline tuning's round 2 is derived from round 1's results by the rule its docstring states: every
+one-factor change that beat `default` on validation, applied together; none before round 1 is complete."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def tune(tmp_path, monkeypatch):
+    spec = importlib.util.spec_from_file_location("tune_baseline", ROOT / "scripts" / "tune_baseline.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    monkeypatch.setattr(module, "DOCS", tmp_path)
+    return module
+
+
+def write(tune, name, reach, button):
+    path = tune.result_path(name)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    val = {
+        "reach-v3": {"0": [reach, 25], "1": [0, 25]},
+        "button-press-topdown-v3": {"0": [button, 25], "1": [0, 25]},
+    }
+    change, overrides = tune.CANDIDATES.get(name, ("x", []))
+    path.write_text(json.dumps({"change": change, "overrides": overrides, "validation": val}))
+
+
+def test_round_two_combines_every_change_that_beat_default(tune):
+    scores = {"default": 30, "ema": 29, "lr5e-4": 38, "chunk8": 34, "wide": 30, "shift8": 31}
+    for name in tune.CANDIDATES:
+        write(tune, name, 0, scores.get(name, 10))
+    change, overrides = tune.combined()
+    assert change == "round 2: lr5e-4 + chunk8 + shift8"  # wide ties default: not a winner
+    assert overrides == [
+        *tune.CANDIDATES["lr5e-4"][1],
+        *tune.CANDIDATES["chunk8"][1],
+        *tune.CANDIDATES["shift8"][1],
+    ]
+    assert tune.command("combined", overrides)[-2:] == ["--out", "runs/tune/combined"]
+
+    write(tune, "combined", 5, 40)
+    assert "combined" in tune.all_candidates()
+    assert tune.table().splitlines()[7].startswith("| combined | x | 45/100")  # best first
+
+
+def test_round_two_needs_round_one_and_two_winners(tune):
+    write(tune, "default", 1, 30)
+    with pytest.raises(SystemExit, match="not run yet: ema, lr5e-4"):
+        tune.combined()
+    for name in tune.CANDIDATES:
+        write(tune, name, 1, 31 if name == "ema" else 30)
+    assert tune.combined() is None  # a single winner: it is the choice, nothing to combine
