@@ -38,6 +38,18 @@ def test_a_one_seed_block_is_the_headline_alignment_verdict_and_figure(report):
     assert head.splitlines()[-1].startswith("| perturbed | 0/2 = 0.00 [0.00, 0.66] |")
 
 
+def test_a_one_seed_block_of_more_than_two_tasks_has_the_per_task_table(report):
+    tasks = ["reach-v3", "push-v3", "soccer-v3"]
+    report["tasks"] = tasks
+    for arm in report["success"].values():
+        cell = arm["clean"]["per_task"]["reach-v3"]
+        arm["clean"]["per_task"] = dict.fromkeys(tasks, cell)
+    block = results_block(report, "figures/f.png")
+    assert "Per task (clean):" in block and "Paired comparisons" not in block
+    assert block.index("Per task (clean):") < block.index(report["verdict"][0])
+    assert "| arm | reach-v3 | push-v3 | soccer-v3 |" in block  # as many arms as tasks: a row per arm
+
+
 def test_the_quick_preset_names_make_demo(report):
     report["preset"] = "quick"
     assert "(`make demo`)" in headline_lines(report)[0]
