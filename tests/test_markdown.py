@@ -47,7 +47,7 @@ def test_a_one_seed_block_of_more_than_two_tasks_has_the_per_task_table(report):
     block = results_block(report, "figures/f.png")
     assert "Per task (clean):" in block and "Paired comparisons" not in block
     assert block.index("Per task (clean):") < block.index(report["verdict"][0])
-    assert "| arm | reach-v3 | push-v3 | soccer-v3 |" in block  # as many arms as tasks: a row per arm
+    assert "| arm | reach-v3 | push-v3 | soccer-v3 |" in block  # no more tasks than arms: a row per arm
 
 
 def test_the_quick_preset_names_make_demo(report):
