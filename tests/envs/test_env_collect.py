@@ -255,7 +255,7 @@ def test_bad_perturbation_is_refused_by_name(tmp_path):
         ({"tasks": ("reach-v3", "reach-v3")}, "--tasks lists 'reach-v3' more than once"),
         ({"cameras": ("corner2", "corner2")}, "--cameras lists 'corner2' more than once"),
         ({"perturbation": "dim:3"}, "--perturbation 'dim:3': severity must be in [0, 1]"),
-        ({"env": "libero", "perturbation": "dim:0.5"}, "only the metaworld simulator renders one"),
+        ({"env": "libero", "perturbation": "fog:0.5"}, "unknown perturbation 'fog'"),
         ({"env": "bullet"}, "--env: unknown simulator 'bullet'"),
     ],
 )

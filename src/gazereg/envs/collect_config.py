@@ -59,7 +59,7 @@ class CollectConfig(Validated):
     goal_marker_radius: float = 0.03
     """Radius (m) of the rendered goal sphere (rendering only); 0 keeps Meta-World's own marker."""
     perturbation: str = ""
-    """Meta-World: render under this perturbation (gazereg.envs.perturbations spec, e.g. dim:0.7): the same
+    """Render under this perturbation (gazereg.envs.perturbations spec, e.g. dim:0.7): the same
     setups and expert actions, seen under other light or with sensor noise; empty = clean."""
     workers: int = 0
     """Worker processes; 0 = one per available core."""
@@ -90,8 +90,6 @@ class CollectConfig(Validated):
         require_number(self.goal_marker_radius, prefix + "goal_marker_radius", 0)
         if self.perturbation:
             flag = option(prefix + "perturbation")
-            if self.env != "metaworld":
-                raise CollectError(f"{flag} {self.perturbation!r}: only the metaworld simulator renders one")
             try:
                 parse_perturbation(self.perturbation)
             except (KeyError, ValueError) as e:

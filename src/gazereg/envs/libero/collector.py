@@ -19,6 +19,7 @@ from gazereg.data.store import Episode
 from gazereg.envs.libero.env import ACTION_LAYOUT, STATE_LAYOUT, LiberoEnv
 from gazereg.envs.libero.expert import SpatialExpert
 from gazereg.envs.libero.setup import import_libero, libero_available, resolve_task, suite_benchmark
+from gazereg.envs.perturbations import parse_perturbation
 from gazereg.envs.recording import noise_seed, record_rollout, summary_of, versions
 
 
@@ -106,6 +107,7 @@ class LiberoCollector:
             image_size=cfg.image_size,
             max_steps=cfg.max_steps,
             gl_backend=cfg.gl_backend or None,
+            perturbation=parse_perturbation(cfg.perturbation),
         )
 
     def rollout(

@@ -84,6 +84,7 @@ from gazereg.envs.libero.setup import (
     init_states,
     make_control_env,
     parse_task,
+    placement_rng,
     resolve_task,
     setup_index,
     suite_benchmark,
@@ -260,7 +261,8 @@ class LiberoEnv(gym.Env):
         self._init_index = k
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            self._env.reset()
+            with placement_rng(self.suite, t, k):
+                self._env.reset()
             clear_transients(self._env, self.physics_data)
             self._rs_obs = self._env.set_init_state(init_states(self.suite, t)[k])
             for _ in range(self.settle_steps):
