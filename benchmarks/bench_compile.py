@@ -18,14 +18,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import statistics
 import tempfile
 import time
 from pathlib import Path
 
 import torch
 from _timing import machine_info
-from bench_train import TRAIN_CFG, Trainer, make_dataset, make_store, train_step
+from bench_train import TRAIN_CFG, Trainer, interleaved_ms, make_dataset, make_store, train_step
 
 from gazereg.data.dataset import StepBatchSampler
 
@@ -81,14 +80,7 @@ def main() -> int:
         for i in range(args.warmup):
             train_step(tr, batches[i % len(batches)], t, i)
         first_s[f"{p}/{t}"] = round(time.perf_counter() - t0, 2)
-    times: dict[tuple[str, str], list[float]] = {m: [] for m in trainers}
-    for _ in range(rounds):
-        for m, tr in trainers.items():
-            for i, b in enumerate(batches):
-                t0 = time.perf_counter()
-                train_step(tr, b, m[1], i)
-                times[m].append(time.perf_counter() - t0)
-    ms = {f"{p}/{t}": round(1000 * statistics.median(v), 2) for (p, t), v in times.items()}
+    ms = {f"{p}/{t}": round(v, 2) for (p, t), v in interleaved_ms(trainers, batches, rounds).items()}
     out["first_steps_s"] = first_s
     out["step_ms_median"] = ms
     out["speedup_vs_eager"] = {

@@ -144,22 +144,28 @@ def train_step(tr: Trainer, batch: dict, term: str, step: int) -> float:
     return float(loss.detach())
 
 
-def time_steps(batches: list[dict], rounds: int, warmup: int) -> tuple[dict, dict]:
-    """Median ms per step of every (path, term), modes interleaved over rounds; and the trainers."""
-    trainers = {m: Trainer.for_path(m[0]) for m in STEP_MODES}
-    for m, tr in trainers.items():
-        for i in range(warmup):
-            train_step(tr, batches[i % len(batches)], m[1], i)
-    times: dict[tuple[str, str], list[float]] = {m: [] for m in STEP_MODES}
+def interleaved_ms(trainers: dict[tuple[str, str], Trainer], batches: list[dict], rounds: int) -> dict:
+    """Median ms per step of every (path, term) trainer, modes interleaved over rounds so a noisy shared CPU
+    affects all alike."""
+    times: dict[tuple[str, str], list[float]] = {m: [] for m in trainers}
     for _ in range(rounds):
         for m, tr in trainers.items():
             for i, b in enumerate(batches):
                 t0 = time.perf_counter()
                 train_step(tr, b, m[1], i)
                 times[m].append(time.perf_counter() - t0)
+    return {m: 1000 * statistics.median(v) for m, v in times.items()}
+
+
+def time_steps(batches: list[dict], rounds: int, warmup: int) -> tuple[dict, dict]:
+    """Median ms per step of every (path, term) after `warmup` steps each; and the trainers."""
+    trainers = {m: Trainer.for_path(m[0]) for m in STEP_MODES}
+    for m, tr in trainers.items():
+        for i in range(warmup):
+            train_step(tr, batches[i % len(batches)], m[1], i)
     step_ms: dict[str, dict[str, float]] = {p: {} for p in PATHS}
-    for (path, term), v in times.items():
-        step_ms[path][term] = 1000 * statistics.median(v)
+    for (path, term), ms in interleaved_ms(trainers, batches, rounds).items():
+        step_ms[path][term] = ms
     return step_ms, trainers
 
 
