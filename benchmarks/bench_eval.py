@@ -11,7 +11,7 @@ as `gazereg eval` uses them; setup seeds from 1000, a new episode when one ends)
   interleaved over rounds, and resets are timed apart (the expert ends episodes early by succeeding, the
   untrained policy runs to max_steps), so `eval_over_raw` compares steps alone;
 - `RolloutWorker.run` itself on that policy saved as a checkpoint (whole episodes, resets included), one
-  episode at a time and `EvalConfig.batch` episodes in lockstep (the untrained policy never succeeds, so
+  episode at a time and `EvalConfig().lockstep()` episodes in lockstep (the untrained policy never succeeds, so
   every episode of a batch runs to max_steps: the best case for lockstep);
 - `select_action` alone per call on a real observation, float32 and under bf16 autocast;
 - `select_action` on a batch of B observations (as one worker stepping B environments in lockstep would
@@ -204,7 +204,7 @@ def main() -> int:
     os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core, before any GL context spawns threads
     max_steps = EVAL_DEFAULTS["max_steps"]
     raw_worker = RolloutWorker(max_steps, backend)  # sets torch to 1 thread, as in evaluation
-    batch = EVAL_DEFAULTS["batch"]
+    batch = EvalConfig().lockstep()
     worker = RolloutWorker(max_steps, backend, batch=batch)
     out: dict[str, Any] = {
         "machine": machine_info(gl_backend=backend, pinned_cores=sorted(os.sched_getaffinity(0))),

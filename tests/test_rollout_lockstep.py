@@ -125,3 +125,9 @@ def test_a_resumed_evaluation_reruns_a_batch_with_a_missing_rollout_whole(tmp_pa
     records = ev.run_jobs(jobs, cfg, False, log_path, lambda: LoggingWorker(calls))
     assert calls == [(2, 3), (4,)]  # rollout 2 runs again, in its own batch
     assert [r["seed"] for r in records] == [0, 1, 2, 3, 4]
+
+
+def test_the_batch_defaults_to_the_simulators_lockstep():
+    assert EvalConfig().lockstep() == 8  # Meta-World: small environments
+    assert EvalConfig(env="libero").lockstep() == 1  # ~1.2 GB each
+    assert EvalConfig(env="libero", batch=3).lockstep() == 3

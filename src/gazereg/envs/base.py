@@ -105,11 +105,13 @@ class Collector(Protocol):
 
 @dataclass(frozen=True)
 class Simulator:
-    """Where a simulator's pieces live: "module:Class" paths, imported on first use."""
+    """Where a simulator's pieces live: "module:Class" paths, imported on first use; and how many of its
+    environments an evaluation worker steps in lockstep by default (`EvalConfig.batch`)."""
 
     name: str
     env: str
     collector: str
+    lockstep: int = 1
 
 
 _SIMULATORS: dict[str, Simulator] = {
@@ -117,11 +119,13 @@ _SIMULATORS: dict[str, Simulator] = {
         "metaworld",
         env="gazereg.envs.metaworld.env:MetaWorldEnv",
         collector="gazereg.envs.metaworld.collector:MetaWorldCollector",
+        lockstep=8,  # small environments; the policy is half of a step (benchmarks/bench_eval.py)
     ),
     "libero": Simulator(
         "libero",
         env="gazereg.envs.libero.env:LiberoEnv",
         collector="gazereg.envs.libero.collector:LiberoCollector",
+        lockstep=1,  # an environment holds ~1.2 GB (gazereg.envs.cache) and rendering dominates its step
     ),
 }
 

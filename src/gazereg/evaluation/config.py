@@ -49,10 +49,11 @@ class EvalConfig(Validated):
     max_steps: int = 150
     workers: int = 2
     """worker processes (one per core); 1 runs in this process"""
-    batch: int = 8
+    batch: int | None = None
     """environments one worker steps in lockstep with one batched policy call per step (episodes of the same
-    checkpoint, task and condition; filmed episodes run alone); 1 steps one episode at a time. The speed-up is
-    measured by benchmarks/bench_eval.py (`rollout_worker_batched_over_single`, docs/benchmarks/)"""
+    checkpoint, task and condition; filmed episodes run alone); 1 steps one episode at a time; None: the
+    simulator's default (`lockstep()`). The speed-up is measured by benchmarks/bench_eval.py
+    (`rollout_worker_batched_over_single`, docs/benchmarks/)"""
     videos: int = 1
     """episodes per (arm, task, condition) saved as GIFs with the attention overlay (0: none)"""
     out: Path = Path("runs/eval")
@@ -71,7 +72,6 @@ class EvalConfig(Validated):
             ("episodes", 1),
             ("max_steps", 1),
             ("workers", 1),
-            ("batch", 1),
             ("videos", 0),
             ("seed_start", 0),
         ):
@@ -88,10 +88,16 @@ class EvalConfig(Validated):
             simulator(self.env)
         except UnknownSimulator as e:
             raise UsageError(f"{option(prefix + 'env')}: {e}") from None
+        if self.batch is not None:
+            require_number(self.batch, prefix + "batch", 1, integer=True)
         if self.robustness_episodes is not None:
             require_number(
                 self.robustness_episodes, prefix + "robustness_episodes", 1, self.episodes, integer=True
             )
+
+    def lockstep(self) -> int:
+        """Environments stepped together per worker: `batch`, or the simulator's default."""
+        return self.batch if self.batch is not None else simulator(self.env).lockstep
 
     def seeds(self, condition: str) -> range:
         """The setup seeds every task is evaluated on under `condition` (each arm on the same ones)."""
@@ -116,7 +122,6 @@ def presets() -> dict[str, Callable[[], EvalConfig]]:
             seed_start=25,
             max_steps=220,
             workers=os.cpu_count() or 2,
-            batch=1,  # a LIBERO environment holds ~1.2 GB (gazereg.envs.cache) and rendering dominates its step
         ),
         "paper": lambda: EvalConfig(
             episodes=50,

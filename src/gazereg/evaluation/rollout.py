@@ -271,24 +271,25 @@ def run_jobs(
     log_path: Path | None = None,
     make_worker: Callable[[], Worker[Sequence[Job], list[dict[str, Any]]]] | None = None,
 ) -> list[dict[str, Any]]:
-    """Run rollouts in `cfg.workers` processes (one when there is at most one batch to run), `cfg.batch`
-    environments in lockstep per worker (`group_jobs`).
+    """Run rollouts in `cfg.workers` processes (one when there is at most one batch to run),
+    `cfg.lockstep()` environments in lockstep per worker (`group_jobs`).
 
     With `log_path`, every finished rollout is appended to that resume log and a batch whose rollouts are all in
     it is not run again (one with any missing runs whole), so a killed evaluation resumes where it stopped.
     Records come back in job order.
-    `make_worker`: builds a process's worker (default: a `RolloutWorker` with cfg's max_steps, gl_backend, env, batch)."""
+    `make_worker`: builds a process's worker (default: a `RolloutWorker` with cfg's max_steps, gl_backend, env
+    and lockstep())."""
     prints = {c: fingerprint_files(c) for c in {j.checkpoint for j in jobs}}
     keys = [job_key(j, cfg.max_steps, cfg.env, prints) for j in jobs]
     episodes = ResumeLog(log_path) if log_path is not None else None
     done = episodes.read() if episodes is not None else {}
-    todo = [g for g in group_jobs(jobs, cfg.batch) if any(keys[i] not in done for i in g)]
+    todo = [g for g in group_jobs(jobs, cfg.lockstep()) if any(keys[i] not in done for i in g)]
     n_todo = sum(len(g) for g in todo)
     if n_todo < len(jobs):
         log.info("resuming evaluation: %d of %d rollouts already logged", len(jobs) - n_todo, len(jobs))
     results: dict[int, dict[str, Any]] = {i: done[k] for i, k in enumerate(keys) if k in done}
     make_worker = make_worker or functools.partial(
-        RolloutWorker, cfg.max_steps, cfg.gl_backend, cfg.env, cfg.batch
+        RolloutWorker, cfg.max_steps, cfg.gl_backend, cfg.env, cfg.lockstep()
     )
     workers = 1 if len(todo) <= 1 else min(cfg.workers, len(todo))
     with (
