@@ -89,9 +89,7 @@ class Episode:
         j = self.job
         out = {"arm": j.arm, "task": j.task, "condition": j.condition, "seed": j.seed}
         out.update(success=self.success, length=self.length)
-        if (
-            self.distances
-        ):  # the simulator's own progress measure (Meta-World: object, or hand, to target; metres)
+        if self.distances:  # the simulator's progress measure (Meta-World: object, or hand, to target; m)
             out["min_distance"] = min(self.distances)
             out["final_distance"] = self.distances[-1]
         if self.video:
