@@ -144,7 +144,7 @@ def table() -> str:
             continue
         r = json.loads(result_path(name).read_text())
         val = r["validation"]
-        total = sum(c[0] for t in val.values() for c in t.values())
+        total = successes(name)
         n = sum(c[1] for t in val.values() for c in t.values())
         per_task = ", ".join(
             f"{task} {sum(c[0] for c in seeds.values())}/{sum(c[1] for c in seeds.values())}"

@@ -67,6 +67,11 @@ class Job:
     seed: int
     video: str | None  # GIF path, or None
 
+    @property
+    def batch_key(self) -> tuple[str, str, str]:
+        """(checkpoint, task, condition): jobs may be rolled out together only when these agree."""
+        return self.checkpoint, self.task, self.condition
+
 
 @dataclass
 class Episode:
@@ -140,10 +145,7 @@ class RolloutWorker:
         """Roll out `jobs` (one checkpoint, task and condition; see `group_jobs`) in lockstep, one environment
         each and one batched `select_action` per step; their records in order. A filmed job runs alone."""
         first = jobs[0]
-        if any(
-            (j.checkpoint, j.task, j.condition) != (first.checkpoint, first.task, first.condition)
-            for j in jobs
-        ):
+        if any(j.batch_key != first.batch_key for j in jobs):
             raise ValueError("jobs rolled out together must share their checkpoint, task and condition")
         if len(jobs) > 1 and any(j.video for j in jobs):
             raise ValueError("a filmed episode is rolled out alone")
@@ -182,28 +184,17 @@ class RolloutWorker:
                 "images": {c: np.stack([o["images"][c] for o in obs]) for c in obs[0]["images"]},
             }
             return policy.select_action(batch, [o["instruction"] for o in obs])
-        action, film.attention = self._act_filmed(
-            policy, film.spec, obs[0], film.camera, film.attention, film.frames
-        )
-        return action[None]
+        return self._act_filmed(policy, film, obs[0])[None]
 
-    def _act_filmed(
-        self,
-        policy: Any,
-        spec: Any,
-        obs: dict[str, Any],
-        camera: str,
-        attn: np.ndarray | None,
-        frames: list[np.ndarray],
-    ) -> tuple[np.ndarray, np.ndarray | None]:
-        """The policy's action with its attention captured; appends the frame (with the latest attention
-        (n_patches,) overlaid) to `frames`. Returns (action, latest attention or None)."""
-        with AttentionProbe(policy, spec, adapter="tap") as probe:
+    def _act_filmed(self, policy: Any, film: Film, obs: dict[str, Any]) -> np.ndarray:
+        """The policy's action (A,) with its attention captured: updates `film.attention` (n_patches,) when the
+        probe saw a layer and appends the frame with the latest attention overlaid to `film.frames`."""
+        with AttentionProbe(policy, film.spec, adapter="tap") as probe:
             action = policy.select_action(obs, obs["instruction"])
         if probe.layers:
-            attn = probe.distribution()[0].numpy()
-        frames.append(self._frame(policy, camera, obs["images"][camera], attn))
-        return action, attn
+            film.attention = probe.distribution()[0].numpy()
+        film.frames.append(self._frame(policy, film.camera, obs["images"][film.camera], film.attention))
+        return action
 
     @staticmethod
     def _frame(policy: Any, camera: str, image: np.ndarray, attn: np.ndarray | None) -> np.ndarray:
@@ -245,7 +236,7 @@ def group_jobs(jobs: Sequence[Job], batch: int) -> list[tuple[int, ...]]:
             and not job.video
             and not last.video
             and len(groups[-1]) < batch
-            and (last.checkpoint, last.task, last.condition) == (job.checkpoint, job.task, job.condition)
+            and last.batch_key == job.batch_key
         )
         if joins:
             groups[-1].append(i)
