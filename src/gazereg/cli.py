@@ -30,6 +30,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "gazereg.experiment:main",
         "the end-to-end pipeline: demos, priors, training, evaluation, report",
     ),
+    "pool": (
+        "gazereg.experiment.pool:main",
+        "one report over run folders of one experiment that differ only in their training seeds",
+    ),
     "compare": (
         "gazereg.report.compare:main",
         "compare two experiment runs on the setups both evaluated (paired tests per arm and condition)",

@@ -56,6 +56,7 @@ from gazereg.report.figures import attention_panels, plot_attention
 from gazereg.report.ids import RunId
 from gazereg.runtime.clock import ResumableClock
 from gazereg.runtime.config import check_same_config, parse, save_config, split_preset, to_dict
+from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_json, sweep_stale_temps
 from gazereg.training.checkpoint import latest_checkpoint, list_checkpoints
 from gazereg.training.config import TrainConfig
@@ -101,6 +102,19 @@ class Experiment:
             self.out,
             "its finished stages would be reused. Choose another --out, or delete the folder to start over.",
         )
+
+    def finished(self) -> dict[str, Any]:
+        """Every stage's record but the report's, read back from a finished run folder (their times into
+        `times`); a UsageError names the first stage not finished."""
+        results = {}
+        for stage in STAGES[:-1]:
+            prev = self.done(stage)
+            if prev is None:
+                raise UsageError(
+                    f"{self.out} has not finished its {stage} stage: run the experiment there first"
+                )
+            results[stage], self.times[stage] = prev, prev.get("seconds", 0.0)
+        return results
 
     def run(self) -> dict[str, Any]:
         self.check_resumable()

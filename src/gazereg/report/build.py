@@ -10,6 +10,7 @@ records.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -127,7 +128,7 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
             "convergence": "figures/convergence.png",
             "attention": outputs.attention_figure,
         },
-        "videos": [str(Path(e["video"]).relative_to(out)) for e in episodes if e.get("video")],
+        "videos": [os.path.relpath(e["video"], out) for e in episodes if e.get("video")],  # ../ when pooled
         "config": spec.config,
     }
 

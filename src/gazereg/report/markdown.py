@@ -312,9 +312,13 @@ def headline_lines(report: dict[str, Any]) -> list[str]:
     command = (
         "make demo" if report["preset"] == "quick" else f"gazereg experiment --preset {report['preset']}"
     )
+    wall = f"wall time {report['wall_time_s'] / 60:.1f} min"
+    if report.get("pooled_from"):  # one seed per folder (gazereg.experiment.pool)
+        command = f"gazereg pool --preset {report['preset']} --runs {' '.join(report['pooled_from'])}"
+        wall += f" summed over {len(report['pooled_from'])} runs"
     return [
-        f"Latest `{report['preset']}` run: {report['date']}, {report['machine']['summary']}, wall time "
-        f"{report['wall_time_s'] / 60:.1f} min (`{command}`). Tasks: {', '.join(report['tasks'])}; "
+        f"Latest `{report['preset']}` run: {report['date']}, {report['machine']['summary']}, {wall} "
+        f"(`{command}`). Tasks: {', '.join(report['tasks'])}; "
         f"{tr['steps']} training steps per arm, seeds {tr['seeds']}; "
         f"{report['eval']['episodes']} unseen setups per task and condition.",
         "",

@@ -35,10 +35,16 @@ def eval_text(ev: dict[str, Any]) -> str:
 def header_lines(report: dict[str, Any]) -> list[str]:
     """The report's title, when and where it ran, and what was trained and evaluated."""
     ev, tr = report["eval"], report["train"]
+    pooled = report.get("pooled_from")
     return [
         f"# gazereg experiment: preset `{report['preset']}`",
         "",
-        f"{report['date']} on {report['machine']['summary']}; wall time {report['wall_time_s'] / 60:.1f} min.",
+        f"{report['date']} on {report['machine']['summary']}; wall time {report['wall_time_s'] / 60:.1f} min"
+        + (
+            f", summed over {len(pooled)} runs pooled by `gazereg pool`: {', '.join(pooled)}."
+            if pooled
+            else "."
+        ),
         "",
         f"Tasks: {', '.join(report['tasks'])}. Demonstrations: {demos_text(report['demos'])}; evaluation on "
         f"{eval_text(ev)}, identical for every arm. Training: "

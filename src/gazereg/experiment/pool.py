@@ -1,0 +1,142 @@
+"""One report over run folders of one experiment that differ only in their training seeds: a preset too long
+for one sitting, run one seed per folder (each folder a whole, resumable experiment), then reported as one.
+
+    gazereg experiment --preset paper --train-seeds 0 --out runs/paper-s0      # one sitting each
+    gazereg experiment --preset paper --train-seeds 1 --out runs/paper-s1
+    gazereg experiment --preset paper --train-seeds 2 --out runs/paper-s2
+    gazereg pool --preset paper --runs runs/paper-s0 runs/paper-s1 runs/paper-s2 --out runs/paper
+
+The pooled report is the one `gazereg experiment --preset paper --out runs/paper` would write from the same
+records: every folder must hold a finished run of the configuration given (`--out` and its seeds aside, and
+the execution keys, which change how a run ran, not what it measured), the folders' seeds must not overlap and
+together be the configuration's `train_seeds`, and their demonstrations and GLC records must be the same
+(each folder collects and trains them from the same seeds). Its wall time is the folders' summed.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+
+from gazereg.experiment.config import EXECUTION_KEYS, PRESETS, ExperimentConfig
+from gazereg.experiment.records import report_spec, with_added_keys
+from gazereg.experiment.runner import Experiment
+from gazereg.report.build import StageOutputs, build_report, write_report
+from gazereg.runtime.config import check_same_config, parse, save_config, split_preset, to_dict
+from gazereg.runtime.errors import UsageError
+from gazereg.runtime.io import atomic_write_json
+
+
+def source_outputs(cfg: ExperimentConfig, preset: str, source: Path) -> tuple[tuple[int, ...], StageOutputs]:
+    """(the training seeds, the stage outputs) of the finished run in `source`, refused (UsageError naming
+    the differing keys) when it ran another configuration than `cfg`."""
+    saved_file = source / "config.json"
+    if not saved_file.is_file():
+        raise UsageError(f"--runs: {source} holds no experiment (no config.json)")
+    saved = json.loads(saved_file.read_text())
+    seeds = tuple(int(s) for s in saved.get("train_seeds", ()))
+    expected = replace(cfg, out=source, train_seeds=seeds)
+    check_same_config(
+        with_added_keys(saved, to_dict(ExperimentConfig()), to_dict(expected)),
+        expected,
+        ("out", *EXECUTION_KEYS),
+        source,
+        "only folders of the same experiment with other training seeds can be pooled.",
+    )
+    exp = Experiment(expected, preset)
+    return seeds, exp.stage_outputs(exp.finished())
+
+
+def merge_outputs(sources: Sequence[Path], outputs: Sequence[StageOutputs], out: Path) -> StageOutputs:
+    """The outputs of the pooled runs as one experiment's: records and per-run values together, the same
+    demonstrations and GLC (refused otherwise), the first folder's attention figure copied to `out`, the
+    latest date and the stage times summed."""
+    first = outputs[0]
+    for source, o in zip(sources[1:], outputs[1:]):
+        for what, mine, theirs in (("demonstrations", o.demos, first.demos), ("GLC", o.glc, first.glc)):
+            if _timeless(mine) != _timeless(theirs):
+                raise UsageError(f"--runs: {source}'s {what} differ from {sources[0]}'s: not one experiment")
+    figure = Path("figures") / "attention.png"
+    (out / figure).parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(sources[0] / first.attention_figure, out / figure)
+    times: dict[str, float] = {}
+    for o in outputs:
+        for stage, seconds in o.stage_times.items():
+            times[stage] = times.get(stage, 0.0) + seconds
+    return StageOutputs(
+        episodes=[r for o in outputs for r in o.episodes],
+        checkpoint_episodes=[r for o in outputs for r in o.checkpoint_episodes],
+        demos=first.demos,
+        glc=first.glc,
+        final_metrics={k: v for o in outputs for k, v in o.final_metrics.items()},
+        metrics_files={k: v for o in outputs for k, v in o.metrics_files.items()},
+        alignment={k: v for o in outputs for k, v in o.alignment.items()},
+        attention_figure=figure.as_posix(),
+        date=max(o.date for o in outputs),
+        stage_times=times,
+    )
+
+
+def _timeless(record: object) -> object:
+    """A stage record without its durations (keys `seconds`), which differ from run to run."""
+    if isinstance(record, dict):
+        return {k: _timeless(v) for k, v in record.items() if k != "seconds"}
+    return record
+
+
+def pool(cfg: ExperimentConfig, preset: str, sources: Sequence[Path]) -> Path:
+    """Write the pooled report of `sources` into `cfg.out` (report.json, report.md, figures, the config and
+    pooled.json naming the folders); returns report.md's path."""
+    if not sources:
+        raise UsageError("--runs needs the run folders to pool")
+    seeds, outputs = zip(*(source_outputs(cfg, preset, Path(s)) for s in sources))
+    flat = [s for group in seeds for s in group]
+    if len(set(flat)) != len(flat):
+        raise UsageError(f"--runs: the folders' training seeds overlap ({flat}); each seed once")
+    if sorted(flat) != sorted(cfg.train_seeds):
+        raise UsageError(
+            f"--runs: the folders' training seeds {sorted(flat)} are not --train-seeds {list(cfg.train_seeds)}"
+        )
+    out = Path(cfg.out)
+    if any(out.resolve() == Path(s).resolve() for s in sources):
+        raise UsageError(f"--out {out} is one of the pooled folders: choose another")
+    out.mkdir(parents=True, exist_ok=True)
+    merged = merge_outputs([Path(s) for s in sources], outputs, out)
+    report = build_report(report_spec(cfg, preset), merged, out)
+    report["pooled_from"] = [str(s) for s in sources]
+    save_config(cfg, out / "config.json")
+    atomic_write_json(out / "pooled.json", {"runs": report["pooled_from"], "seeds": [list(g) for g in seeds]})
+    return write_report(out, report)
+
+
+def take_runs(argv: Sequence[str]) -> tuple[list[Path], list[str]]:
+    """Remove `--runs DIR [DIR ...]` (the values up to the next option) from argv: (the folders, the rest)."""
+    rest, runs, taking = [], [], False
+    for arg in argv:
+        if arg == "--runs":
+            taking = True
+        elif taking and not arg.startswith("--"):
+            runs.append(Path(arg))
+        else:
+            taking = False
+            rest.append(arg)
+    return runs, rest
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    sources, rest = take_runs(args)
+    preset, flags = split_preset(rest, "paper")
+    cfg = parse(PRESETS, ["--preset", preset, *flags], prog="gazereg pool", description=__doc__ or "")
+    path = pool(cfg, preset, sources)
+    print(path.read_text())
+    print(f"pooled {len(sources)} runs into {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,72 @@
+"""scripts/horizon.py: a longer evaluation of a finished experiment, and its short-limit outcomes equal to the
+experiment's own evaluation."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from gazereg import cli
+
+pytestmark = pytest.mark.sim
+
+SCRIPT = Path(__file__).parents[1] / "scripts" / "horizon.py"
+
+
+def test_horizon_counts_successes_within_both_limits_and_reproduces_the_short_one(tmp_path):
+    out = tmp_path / "exp"
+    small = [
+        "--preset",
+        "smoke",
+        "--arms",
+        "baseline",
+        "gaze",
+        "--eval.conditions",
+        "clean",
+        "--parallel",
+        "1",
+    ]
+    assert cli.main(["experiment", *small, "--eval.episodes", "3", "--out", str(out)]) == 0
+    subprocess.run(
+        [sys.executable, str(SCRIPT), str(out), "--max-steps", "40"], check=True, cwd=tmp_path.parent
+    )
+    result = json.loads((out / "horizon40" / "horizon.json").read_text())
+    report = json.loads((out / "report.json").read_text())
+    assert result["short_steps"] == 15 and set(result["arms"]) == {"baseline", "gaze"}
+    for arm, t in result["arms"].items():
+        assert t["episodes"] == 3 and t["mismatches"] == 0
+        assert t["within_short"] == report["success"][arm]["clean"]["successes"]
+        assert t["within_long"] == t["within_short"] + t["only_long"]
+    assert "| baseline | 3 |" in (out / "horizon40" / "horizon.md").read_text()
+    bad = subprocess.run(
+        [sys.executable, str(SCRIPT), str(out), "--max-steps", "15"], capture_output=True, text=True
+    )
+    assert bad.returncode != 0 and "not longer than the experiment's 15" in bad.stderr
+
+
+def test_tally_splits_successes_by_the_short_limit_and_counts_outcomes_that_differ():
+    sys.path.insert(0, str(SCRIPT.parent))
+    from horizon import tally
+
+    def rec(seed, success, length, arm="gaze@s0"):
+        return dict(arm=arm, task="t", seed=seed, condition="clean", success=success, length=length)
+
+    long = [
+        rec(0, True, 10),
+        rec(1, True, 90),
+        rec(2, False, 120),
+        rec(3, True, 12),
+        rec(0, True, 5, "baseline@s1"),
+    ]
+    short = [
+        rec(0, True, 10),
+        rec(1, False, 20),
+        rec(2, False, 20),
+        rec(3, False, 20),
+        rec(0, True, 5, "baseline@s1"),
+    ]
+    t = tally(long, short, limit=20)
+    assert t["gaze"] == dict(episodes=4, within_short=2, within_long=3, only_long=1, mismatches=1)  # seed 3
+    assert t["baseline"] == dict(episodes=1, within_short=1, within_long=1, only_long=0, mismatches=0)
