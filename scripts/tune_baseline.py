@@ -80,6 +80,18 @@ def combined() -> tuple[str, list[str]] | None:
     return "round 2: " + " + ".join(winners), [arg for n in winners for arg in CANDIDATES[n][1]]
 
 
+def chosen() -> str | None:
+    """The recipe's candidate once tuning is over (round 1 complete, and `combined` run where round 2 has
+    one): the most validation successes, ties to the earlier candidate (round 1's order, `combined` last);
+    None while tuning goes on."""
+    if any(not result_path(n).exists() for n in CANDIDATES):
+        return None
+    if combined() is not None and not result_path("combined").exists():
+        return None
+    names = [n for n in all_candidates() if result_path(n).exists()]
+    return max(names, key=lambda n: (successes(n), -names.index(n)))
+
+
 def all_candidates() -> dict[str, tuple[str, list[str]]]:
     """Every candidate whose definition is known now: round 1's, and `combined` once round 2 has run or can."""
     out = dict(CANDIDATES)
@@ -170,6 +182,14 @@ def table() -> str:
     done = {row[2] for row in rows}
     todo = [name for name in CANDIDATES if name not in done]
     lines += ["", f"Not run yet: {', '.join(todo)}." if todo else "Every one-factor candidate has run."]
+    choice = chosen()
+    if choice is not None:
+        overrides = shlex.join(all_candidates()[choice][1]) or "no override"
+        lines += [
+            "",
+            f"**Chosen recipe: {choice}** (the most validation successes; `{overrides}` on the shared command). The",
+            "`paper` and `sweep` presets train with it (`gazereg.training.config.tuned`).",
+        ]
     return "\n".join(lines) + "\n"
 
 

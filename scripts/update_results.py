@@ -5,6 +5,8 @@
     python scripts/update_results.py runs/paper6k --against runs/paper --marker paper-budget
         (run B = runs/paper6k compared with run A = runs/paper on the setups both evaluated)
     python scripts/update_results.py --headline                                  # only the README's headline
+    python scripts/update_results.py --file runs/paper-s0/horizon500/horizon.md --marker paper-horizon
+        (a markdown file a script wrote, e.g. scripts/horizon.py's, as the block)
     python scripts/update_results.py runs/quick --check      # exit 1 if the run's numbers differ from the block
 
 A run's block is `gazereg.report.results_block` of its report.json, with the run's attention figure copied to
@@ -115,6 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--headline", action="store_true", help="only copy the README's headline from docs/results.md"
     )
+    ap.add_argument("--file", type=Path, help="write this markdown file (a script's output) as the block")
     ap.add_argument("--root", type=Path, default=ROOT, help="the repository to update (default: this one)")
     ap.add_argument(
         "--check",
@@ -126,8 +129,12 @@ def main(argv: list[str] | None = None) -> int:
         update_headline(args.root)
         print(f"README.md block {HEADLINE!r} updated from {RESULTS_PAGE} block {HEADLINE_SOURCE!r}")
         return 0
+    if args.file:
+        replace_block(args.root / RESULTS_PAGE, args.marker, args.file.read_text().rstrip("\n") + "\n")
+        print(f"{RESULTS_PAGE} block {args.marker!r} updated from {args.file}")
+        return 0
     if args.run_dir is None:
-        ap.error("run_dir is needed unless --headline is given")
+        ap.error("run_dir is needed unless --headline or --file is given")
     if args.check:
         return check(args.root, args.run_dir, args.marker)
     if args.against:

@@ -29,13 +29,22 @@ def test_a_several_seed_results_block_is_byte_identical_to_the_golden_rendering(
 
 
 def test_a_one_seed_block_is_the_headline_alignment_verdict_and_figure(report):
+    for arm in set(report["success"]) - {"baseline", "gaze"}:  # two arms: the quick preset's block
+        report["success"].pop(arm)
     block = results_block(report, "figures/f.png")
     head = "\n".join(headline_lines(report))
     assert block.startswith(head + "\n\nAttention vs gaze on held-out frames:\n")
     assert "Paired comparisons" not in block and "Per task" not in block  # only for several training seeds
     assert block.endswith("\n".join([*report["verdict"], "", "![attention](figures/f.png)", ""]))
     assert head.startswith("Latest `smoke` run: ") and "(`gazereg experiment --preset smoke`)" in head
-    assert head.splitlines()[-1].startswith("| perturbed | 0/2 = 0.00 [0.00, 0.66] |")
+    assert head.splitlines()[-1].startswith("| gaze | ")
+
+
+def test_a_one_seed_block_of_more_than_two_arms_has_the_per_task_table(report):
+    assert len(report["success"]) > 2
+    block = results_block(report, "figures/f.png")
+    assert block.index("Per task (clean):") < block.index(report["verdict"][0])
+    assert "| perturbed | 0/2 [0.00, 0.66] |" in block
 
 
 def test_a_one_seed_block_of_more_than_two_tasks_has_the_per_task_table(report):

@@ -55,3 +55,23 @@ def test_round_two_needs_round_one_and_two_winners(tune):
     for name in tune.CANDIDATES:
         write(tune, name, 1, 31 if name == "ema" else 30)
     assert tune.combined() is None  # a single winner: it is the choice, nothing to combine
+
+
+def test_the_tuned_recipe_is_the_chosen_candidates_and_the_paper_presets():
+    from gazereg.experiment.config import PRESETS, paper, sweep
+    from gazereg.runtime.config import config_diff, parse, to_dict
+    from gazereg.training.config import tuned
+
+    spec = importlib.util.spec_from_file_location("tune_real", ROOT / "scripts" / "tune_baseline.py")
+    tune = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tune)  # the committed docs/tuning results
+    name = tune.chosen()
+    assert name is not None, "tuning is not over: no chosen candidate in docs/tuning"
+    cmd = tune.command(name, tune.all_candidates()[name][1])
+    assert not [a for a in cmd if a.startswith("--image-size")]  # a recipe of training options only
+    ran = parse(PRESETS, cmd[2:], prog="tune").train
+    ignore = ("run_dir", "device")
+    assert config_diff(to_dict(ran), to_dict(tuned()), ignore) == {}
+    for preset in (paper, sweep):
+        assert config_diff(to_dict(preset().train), to_dict(tuned()), ignore) == {}
+    assert f"**Chosen recipe: {name}**" in (ROOT / "docs" / "tuning" / "baseline.md").read_text()

@@ -106,3 +106,15 @@ def test_check_passes_on_the_same_numbers_and_fails_on_others(script, repo, run,
     assert page.read_text() != text
     assert script.main([str(run), "--root", str(repo), "--check"]) == 1
     assert "does not reproduce" in capsys.readouterr().out
+
+
+def test_a_scripts_markdown_file_becomes_a_block(script, repo, tmp_path):
+    md = tmp_path / "horizon.md"
+    md.write_text("## Horizon\n\n| arm | n |\n|---|---|\n| gaze | 3 |\n\n")
+    assert script.main(["--file", str(md), "--marker", "quick-results", "--root", str(repo)]) == 0
+    page = (repo / "docs" / "results.md").read_text()
+    assert (
+        "<!-- quick-results:start -->\n## Horizon\n\n| arm | n |\n|---|---|\n| gaze | 3 |\n<!-- quick-results:end -->"
+        in page
+    )
+    assert "old paper" in page and "middle" in page

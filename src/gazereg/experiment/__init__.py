@@ -2,7 +2,7 @@
 
 `config` holds the configuration and its presets, `arms` what each arm trains on, `demos` and `glc` the
 demos stage's collections and the glc arm's GLC, `records` the saved config and the report's spec, `runner` the
-stages; see `gazereg.experiment.runner`.
+stages (see `gazereg.experiment.runner`), `pool` one report over folders that each ran some training seeds.
 Runs are named by `gazereg.report.ids.RunId` (arm, training seed, step).
 """
 

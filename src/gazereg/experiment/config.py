@@ -26,6 +26,7 @@ from gazereg.runtime.errors import UsageError
 from gazereg.training.config import DataConfig, GazeConfig, OptimConfig, TrainConfig
 from gazereg.training.config import quick as quick_train
 from gazereg.training.config import smoke as smoke_train
+from gazereg.training.config import tuned as tuned_train
 
 
 @dataclass(frozen=True)
@@ -219,23 +220,29 @@ def smoke() -> ExperimentConfig:
 
 
 def paper() -> ExperimentConfig:
-    """The powered comparison sized for this CPU (98 minutes on 2 cores with bf16 training at 5a39472,
-    docs/results.md; faster with more cores): the claim's three arms (baseline, gaze, perturbed gaze) x 3
-    training seeds, 8,000 steps of batch 32 with checkpoints every 1,000 for the success-versus-steps curve,
-    50 unseen setups per task and condition, paired by seed across arms. Resumable stage by stage;
-    evaluation resumes episode by episode.
+    """The powered comparison on the two headline tasks, on the recipe tuned without gaze
+    (`gazereg.training.config.tuned`, docs/tuning/baseline.md): the baseline, visuomotor gaze, glc gaze (a GLC
+    trained on the simulated gaze of 20 demonstrations per task on setups of their own, predicting the priors
+    from video only), the shuffled-gaze control (`perturbed`) and the location control (the gaze prior
+    supervising a head on the features, not the attention) x 3 training seeds; 50 unseen setups per task and
+    condition (clean, dim light, sensor noise), paired by seed across arms; checkpoints every 2,000 steps for
+    the success-versus-steps curve. Resumable stage by stage; evaluation resumes episode by episode.
 
-    8,000 steps: on the same setups the gaze arm's clean success rose from 4,000 to 6,000 steps and the
-    baseline's from 6,000 to 8,000, and neither rose further (gaze 6,000 -> 8,000, baseline 8,000 -> 10,000;
-    docs/results.md, "Training budget"), so a shorter budget shortchanges one arm and a longer one gains nothing."""
+    Too long for one sitting on 2 cores (15 runs of 16,000 steps), it runs one seed per folder, each a
+    whole experiment, then one report over them (`gazereg.experiment.pool`):
+
+        gazereg experiment --preset paper --train-seeds 0 --out runs/paper-s0     # then seeds 1 and 2
+        gazereg pool --preset paper --runs runs/paper-s0 runs/paper-s1 runs/paper-s2 --out runs/paper
+
+    A folder trains its 5 runs at once (`parallel=5`, one thread each: every core busy to the end)."""
     return ExperimentConfig(
         out=Path("runs/paper"),
         demos_per_task=50,
         heldout_per_task=5,
-        arms=("baseline", "gaze", "perturbed"),
+        arms=("baseline", "gaze", "glc", "perturbed", "location"),
         train_seeds=(0, 1, 2),
-        train=replace(quick_train(), steps=8000, batch_size=32, device="auto"),  # a GPU when there is one
-        parallel=3,
+        train=replace(tuned_train(), device="auto"),  # a GPU when there is one
+        parallel=5,
         eval=EvalConfig(episodes=50, max_steps=120, conditions=("clean", "dim:0.7", "gaussian_noise:0.5")),
         convergence_points=8,
         convergence_episodes=10,
@@ -253,8 +260,9 @@ def sweep() -> ExperimentConfig:
     soccer; pick-place, push), trained together with the `paper` preset's recipe (one seed); baseline,
     visuomotor gaze, cross-fitted glc (two GLCs, each trained on the other four tasks' demonstrations, 2 easy,
     1 medium and 1 hard each: no task's prior comes from a GLC that saw its gaze) and the location control; 50
-    unseen setups per task, clean. Sized for about 70 minutes on 2 cores: demos 8 x 53 ~ 6, GLC folds ~ 15,
-    training 4 runs x 8,000 steps at ~0.1 s / 2 at once ~ 27, evaluation 4 x 400 episodes at <= 0.7 s ~ 19."""
+    unseen setups per task, clean. Sized (at 8,000 steps, before tuning doubled them) for about 70 minutes on 2
+    cores: demos 8 x 53 ~ 6, GLC folds ~ 15, training 4 runs x 8,000 steps at ~0.1 s / 2 at once ~ 27,
+    evaluation 4 x 400 episodes at <= 0.7 s ~ 19; the tuned recipe's 16,000 steps make training ~54."""
     tasks = draw_tasks(SWEEP_DRAW, exclude=quick().tasks, seed=0)
     return ExperimentConfig(
         out=Path("runs/sweep"),

@@ -329,7 +329,7 @@ def headline_lines(report: dict[str, Any]) -> list[str]:
 def results_block(report: dict[str, Any], figure: str) -> str:
     """One run's results block for docs/results.md: the headline, attention vs gaze, (for several training
     seeds) the per-task, per-seed, paired, distance, loss and convergence tables, (for one seed and more than
-    two tasks) the per-task table, the verdict and the attention figure at the relative path `figure`. Ends
+    two tasks or arms) the per-task table, the verdict and the attention figure at the relative path `figure`. Ends
     with a newline."""
     lines = [*headline_lines(report), ""]
     if report.get("alignment"):
@@ -349,7 +349,7 @@ def results_block(report: dict[str, Any], figure: str) -> str:
             "",
             *convergence_lines(report),
         ]
-    elif len(report["tasks"]) > 2:  # a task sweep: the pooled headline hides the tasks
+    elif len(report["tasks"]) > 2 or len(report["success"]) > 2:  # the pooled headline hides too much
         lines += [*per_task_lines(report), ""]
     lines += [*report["verdict"], "", f"![attention]({figure})", ""]
     return "\n".join(lines)
