@@ -220,21 +220,14 @@ def smoke() -> ExperimentConfig:
 
 
 def paper() -> ExperimentConfig:
-    """The powered comparison on the two headline tasks, on the recipe tuned without gaze
-    (`gazereg.training.config.tuned`, docs/tuning/baseline.md): the baseline, visuomotor gaze, glc gaze (a GLC
-    trained on the simulated gaze of 20 demonstrations per task on setups of their own, predicting the priors
-    from video only), the shuffled-gaze control (`perturbed`) and the location control (the gaze prior
-    supervising a head on the features, not the attention) x 3 training seeds; 50 unseen setups per task and
-    condition (clean, dim light, sensor noise), paired by seed across arms; checkpoints every 2,000 steps for
-    the success-versus-steps curve. Resumable stage by stage; evaluation resumes episode by episode.
-
-    Too long for one sitting on 2 cores (15 runs of 16,000 steps), it runs one seed per folder, each a
-    whole experiment, then one report over them (`gazereg.experiment.pool`):
-
+    """The powered comparison on the headline tasks with the recipe tuned without gaze (`training.config.tuned`):
+    baseline, visuomotor gaze, glc gaze (a GLC trained on the simulated gaze of 20 demonstrations per task on
+    setups of their own, predicting from video only), shuffled gaze (`perturbed`) and the location control
+    (the prior supervising a head on the features, not attention) x 3 seeds; 50 unseen setups per task and
+    condition (clean, dim, noise), paired across arms; checkpoints every 2,000 steps. Too long for one sitting
+    on 2 cores, it runs one seed per folder (5 runs at once), then one report (`gazereg.experiment.pool`):
         gazereg experiment --preset paper --train-seeds 0 --out runs/paper-s0     # then seeds 1 and 2
-        gazereg pool --preset paper --runs runs/paper-s0 runs/paper-s1 runs/paper-s2 --out runs/paper
-
-    A folder trains its 5 runs at once (`parallel=5`, one thread each: every core busy to the end)."""
+        gazereg pool --preset paper --runs runs/paper-s0 runs/paper-s1 runs/paper-s2 --out runs/paper"""
     return ExperimentConfig(
         out=Path("runs/paper"),
         demos_per_task=50,
@@ -260,9 +253,8 @@ def sweep() -> ExperimentConfig:
     soccer; pick-place, push), trained together with the `paper` preset's recipe (one seed); baseline,
     visuomotor gaze, cross-fitted glc (two GLCs, each trained on the other four tasks' demonstrations, 2 easy,
     1 medium and 1 hard each: no task's prior comes from a GLC that saw its gaze) and the location control; 50
-    unseen setups per task, clean. Sized (at 8,000 steps, before tuning doubled them) for about 70 minutes on 2
-    cores: demos 8 x 53 ~ 6, GLC folds ~ 15, training 4 runs x 8,000 steps at ~0.1 s / 2 at once ~ 27,
-    evaluation 4 x 400 episodes at <= 0.7 s ~ 19; the tuned recipe's 16,000 steps make training ~54."""
+    unseen setups per task, clean. About 100 minutes on 2 cores: demos 8 x 53 ~ 6, GLC folds ~ 15, training
+    4 runs x 16,000 steps at ~0.1 s / 2 at once ~ 54, evaluation 4 x 400 episodes at <= 0.7 s ~ 19."""
     tasks = draw_tasks(SWEEP_DRAW, exclude=quick().tasks, seed=0)
     return ExperimentConfig(
         out=Path("runs/sweep"),
