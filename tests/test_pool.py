@@ -1,4 +1,5 @@
-"""`gazereg pool`: one seed per folder, then one report, the same as the experiment run with every seed."""
+"""`gazereg pool`: one seed per folder (and an arm added later), then one report, the same as the experiment run
+with every seed and arm."""
 
 import json
 
@@ -8,45 +9,59 @@ from gazereg import cli
 
 pytestmark = pytest.mark.sim
 
-SMALL = ["--preset", "smoke", "--arms", "baseline", "gaze", "--eval.conditions", "clean", "--parallel", "1"]
+SMALL = ["--preset", "smoke", "--eval.conditions", "clean", "--parallel", "1"]
+ARMS = ["--arms", "baseline", "gaze", "perturbed"]
 
 
-def _experiment(out, *seeds):
-    assert cli.main(["experiment", *SMALL, "--train-seeds", *map(str, seeds), "--out", str(out)]) == 0
+def _experiment(out, seeds, arms=("baseline", "gaze")):
+    seeds = ["--train-seeds", *map(str, seeds)]
+    assert cli.main(["experiment", *SMALL, "--arms", *arms, *seeds, "--out", str(out)]) == 0
 
 
-def test_pooled_seed_folders_report_what_one_run_of_every_seed_reports(tmp_path, capsys):
+def test_pooled_folders_report_what_one_run_of_every_seed_and_arm_reports(tmp_path, capsys):
     for seed in (0, 1):
-        _experiment(tmp_path / f"s{seed}", seed)
-    _experiment(tmp_path / "both", 0, 1)
-    runs = ["--runs", str(tmp_path / "s0"), str(tmp_path / "s1")]
+        _experiment(tmp_path / f"s{seed}", [seed])
+    _experiment(tmp_path / "perturbed", [0, 1], ["perturbed"])
+    _experiment(tmp_path / "both", [0, 1], ARMS[1:])
+    runs = ["--runs", *(str(tmp_path / f) for f in ("s0", "s1", "perturbed"))]
     pooled = tmp_path / "pooled"
-    assert cli.main(["pool", *SMALL, "--train-seeds", "0", "1", *runs, "--out", str(pooled)]) == 0
+    assert cli.main(["pool", *SMALL, *ARMS, "--train-seeds", "0", "1", *runs, "--out", str(pooled)]) == 0
     a = json.loads((pooled / "report.json").read_text())
     b = json.loads((tmp_path / "both" / "report.json").read_text())
     for key in ("success", "paired", "per_seed", "distance", "verdict", "alignment", "val_loss", "demos"):
         assert a[key] == b[key], key
     assert a["train"]["seeds"] == [0, 1] and a["pooled_from"] == runs[1:]
     assert a["wall_time_s"] == pytest.approx(
-        sum(json.loads((tmp_path / s / "report.json").read_text())["wall_time_s"] for s in ("s0", "s1"))
+        sum(
+            json.loads((tmp_path / s / "report.json").read_text())["wall_time_s"]
+            for s in ("s0", "s1", "perturbed")
+        )
     )
     assert (pooled / a["figures"]["attention"]).stat().st_size > 1000
     assert (
-        f"summed over 2 runs pooled by `gazereg pool`: {', '.join(runs[1:])}."
+        f"summed over 3 runs pooled by `gazereg pool`: {', '.join(runs[1:])}."
         in (pooled / "report.md").read_text()
     )
     from gazereg.report import results_block
 
     assert f"(`gazereg pool --preset smoke --runs {' '.join(runs[1:])}`)" in results_block(a, "x.png")
 
-    capsys.readouterr()  # refused, one line each: a seed missing, seeds twice, another configuration
-    assert cli.main(["pool", *SMALL, "--train-seeds", "0", "1", "2", *runs, "--out", str(pooled)]) == 2
-    assert "are not --train-seeds [0, 1, 2]" in capsys.readouterr().err
-    twice = ["--runs", str(tmp_path / "s0"), str(tmp_path / "both")]
-    assert cli.main(["pool", *SMALL, "--train-seeds", "0", "1", *twice, "--out", str(pooled)]) == 2
+    capsys.readouterr()  # refused, one line each: a run missing, runs twice, an arm not asked, another config
+    seeds3 = [*ARMS, "--train-seeds", "0", "1", "2"]
+    assert cli.main(["pool", *SMALL, *seeds3, *runs, "--out", str(pooled)]) == 2
+    assert "missing baseline@s2, gaze@s2, perturbed@s2, not asked for none" in capsys.readouterr().err
+    twice = [*runs, str(tmp_path / "both")]
+    assert cli.main(["pool", *SMALL, *ARMS, "--train-seeds", "0", "1", *twice, "--out", str(pooled)]) == 2
     assert "overlap" in capsys.readouterr().err
-    changed = [*SMALL, "--train.steps", "13", "--train-seeds", "0", "1", *runs, "--out", str(pooled)]
+    assert cli.main(["pool", *SMALL, "--arms", "baseline", "gaze", *runs, "--out", str(pooled)]) == 2
+    assert "trained ['perturbed'], not in --arms" in capsys.readouterr().err
+    changed = [*SMALL, *ARMS, "--train.steps", "13", "--train-seeds", "0", "1", *runs, "--out", str(pooled)]
     assert cli.main(["pool", *changed]) == 2
     assert "train.steps: 12 -> 13" in capsys.readouterr().err
-    assert cli.main(["pool", *SMALL, "--train-seeds", "0", *runs[:2], "--out", str(tmp_path / "s0")]) == 2
+    assert cli.main(["pool", *SMALL, *ARMS, *runs, "--out", str(pooled)]) == 2  # the preset's seeds: 0
+    assert "missing none, not asked for baseline@s1, gaze@s1, perturbed@s1" in capsys.readouterr().err
+    assert (
+        cli.main(["pool", *SMALL, *ARMS, "--train-seeds", "0", "1", *runs, "--out", str(tmp_path / "s0")])
+        == 2
+    )
     assert "one of the pooled folders" in capsys.readouterr().err

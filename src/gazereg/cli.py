@@ -32,7 +32,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     ),
     "pool": (
         "gazereg.experiment.pool:main",
-        "one report over run folders of one experiment that differ only in their training seeds",
+        "one report over run folders of one experiment that differ only in their training seeds and arms",
     ),
     "compare": (
         "gazereg.report.compare:main",

@@ -1,16 +1,20 @@
-"""One report over run folders of one experiment that differ only in their training seeds: a preset too long
-for one sitting, run one seed per folder (each folder a whole, resumable experiment), then reported as one.
+"""One report over run folders of one experiment that differ only in their training seeds and arms: a preset
+too long for one sitting, run one seed per folder (each folder a whole, resumable experiment), or extra arms
+run later on the same setups (ablations), then reported as one.
 
     gazereg experiment --preset paper --train-seeds 0 --out runs/paper-s0      # one sitting each
     gazereg experiment --preset paper --train-seeds 1 --out runs/paper-s1
     gazereg experiment --preset paper --train-seeds 2 --out runs/paper-s2
     gazereg pool --preset paper --runs runs/paper-s0 runs/paper-s1 runs/paper-s2 --out runs/paper
+    gazereg experiment --preset paper --arms uniform --out runs/paper-uniform  # later, an ablation arm
+    gazereg pool --preset paper --arms baseline gaze glc perturbed location uniform \
+        --runs runs/paper-s0 runs/paper-s1 runs/paper-s2 runs/paper-uniform --out runs/paper-ablations
 
 The pooled report is the one `gazereg experiment --preset paper --out runs/paper` would write from the same
-records: every folder must hold a finished run of the configuration given (`--out` and its seeds aside, and
-the execution keys, which change how a run ran, not what it measured), the folders' seeds must not overlap and
-together be the configuration's `train_seeds`, and their demonstrations and GLC records must be the same
-(each folder collects and trains them from the same seeds). Its wall time is the folders' summed.
+records: every folder must hold a finished experiment of the configuration given (`--out`, its seeds and arms
+aside, and the execution keys, which change how a run ran, not what it measured), each run (arm x seed) of
+`--arms` x `--train-seeds` must be in exactly one folder, and the folders' demonstrations and GLC records must
+be the same (each folder collects and trains them from the same seeds). Its wall time is the folders' summed.
 """
 
 from __future__ import annotations
@@ -26,29 +30,34 @@ from gazereg.experiment.config import EXECUTION_KEYS, PRESETS, ExperimentConfig
 from gazereg.experiment.records import report_spec, with_added_keys
 from gazereg.experiment.runner import Experiment
 from gazereg.report.build import StageOutputs, build_report, write_report
+from gazereg.report.ids import RunId
 from gazereg.runtime.config import check_same_config, parse, save_config, split_preset, to_dict
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_json
 
 
-def source_outputs(cfg: ExperimentConfig, preset: str, source: Path) -> tuple[tuple[int, ...], StageOutputs]:
-    """(the training seeds, the stage outputs) of the finished run in `source`, refused (UsageError naming
-    the differing keys) when it ran another configuration than `cfg`."""
+def source_outputs(cfg: ExperimentConfig, preset: str, source: Path) -> tuple[list[RunId], StageOutputs]:
+    """(the runs, the stage outputs) of the finished experiment in `source`, refused (UsageError naming the
+    differing keys) when it ran another configuration than `cfg` apart from its seeds and arms."""
     saved_file = source / "config.json"
     if not saved_file.is_file():
         raise UsageError(f"--runs: {source} holds no experiment (no config.json)")
     saved = json.loads(saved_file.read_text())
     seeds = tuple(int(s) for s in saved.get("train_seeds", ()))
-    expected = replace(cfg, out=source, train_seeds=seeds)
+    arms = tuple(saved.get("arms", ()))
+    unknown = [a for a in arms if a not in cfg.arms]
+    if unknown:
+        raise UsageError(f"--runs: {source} trained {unknown}, not in --arms {list(cfg.arms)}")
+    expected = replace(cfg, out=source, train_seeds=seeds, arms=arms)
     check_same_config(
         with_added_keys(saved, to_dict(ExperimentConfig()), to_dict(expected)),
         expected,
         ("out", *EXECUTION_KEYS),
         source,
-        "only folders of the same experiment with other training seeds can be pooled.",
+        "only folders of the same experiment with other training seeds or arms can be pooled.",
     )
     exp = Experiment(expected, preset)
-    return seeds, exp.stage_outputs(exp.finished())
+    return list(exp.run_dirs()), exp.stage_outputs(exp.finished())
 
 
 def merge_outputs(sources: Sequence[Path], outputs: Sequence[StageOutputs], out: Path) -> StageOutputs:
@@ -56,10 +65,15 @@ def merge_outputs(sources: Sequence[Path], outputs: Sequence[StageOutputs], out:
     demonstrations and GLC (refused otherwise), the first folder's attention figure copied to `out`, the
     latest date and the stage times summed."""
     first = outputs[0]
+    glcs = [(source, o.glc) for source, o in zip(sources, outputs) if o.glc is not None]
     for source, o in zip(sources[1:], outputs[1:]):
-        for what, mine, theirs in (("demonstrations", o.demos, first.demos), ("GLC", o.glc, first.glc)):
-            if _timeless(mine) != _timeless(theirs):
-                raise UsageError(f"--runs: {source}'s {what} differ from {sources[0]}'s: not one experiment")
+        if _timeless(o.demos) != _timeless(first.demos):
+            raise UsageError(
+                f"--runs: {source}'s demonstrations differ from {sources[0]}'s: not one experiment"
+            )
+    for source, glc in glcs[1:]:
+        if _timeless(glc) != _timeless(glcs[0][1]):
+            raise UsageError(f"--runs: {source}'s GLC differs from {glcs[0][0]}'s: not one experiment")
     figure = Path("figures") / "attention.png"
     (out / figure).parent.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(sources[0] / first.attention_figure, out / figure)
@@ -71,7 +85,7 @@ def merge_outputs(sources: Sequence[Path], outputs: Sequence[StageOutputs], out:
         episodes=[r for o in outputs for r in o.episodes],
         checkpoint_episodes=[r for o in outputs for r in o.checkpoint_episodes],
         demos=first.demos,
-        glc=first.glc,
+        glc=glcs[0][1] if glcs else None,
         final_metrics={k: v for o in outputs for k, v in o.final_metrics.items()},
         metrics_files={k: v for o in outputs for k, v in o.metrics_files.items()},
         alignment={k: v for o in outputs for k, v in o.alignment.items()},
@@ -93,13 +107,16 @@ def pool(cfg: ExperimentConfig, preset: str, sources: Sequence[Path]) -> Path:
     pooled.json naming the folders); returns report.md's path."""
     if not sources:
         raise UsageError("--runs needs the run folders to pool")
-    seeds, outputs = zip(*(source_outputs(cfg, preset, Path(s)) for s in sources))
-    flat = [s for group in seeds for s in group]
+    runs, outputs = zip(*(source_outputs(cfg, preset, Path(s)) for s in sources))
+    flat = [str(r) for group in runs for r in group]
     if len(set(flat)) != len(flat):
-        raise UsageError(f"--runs: the folders' training seeds overlap ({flat}); each seed once")
-    if sorted(flat) != sorted(cfg.train_seeds):
+        raise UsageError(f"--runs: the folders' runs overlap ({', '.join(sorted(flat))}); each run once")
+    wanted = sorted(str(RunId(a, s)) for a in cfg.arms for s in cfg.train_seeds)
+    if sorted(flat) != wanted:
+        missing, extra = sorted(set(wanted) - set(flat)), sorted(set(flat) - set(wanted))
         raise UsageError(
-            f"--runs: the folders' training seeds {sorted(flat)} are not --train-seeds {list(cfg.train_seeds)}"
+            f"--runs: the folders' runs are not --arms x --train-seeds: missing {', '.join(missing) or 'none'}, "
+            f"not asked for {', '.join(extra) or 'none'}"
         )
     out = Path(cfg.out)
     if any(out.resolve() == Path(s).resolve() for s in sources):
@@ -109,7 +126,9 @@ def pool(cfg: ExperimentConfig, preset: str, sources: Sequence[Path]) -> Path:
     report = build_report(report_spec(cfg, preset), merged, out)
     report["pooled_from"] = [str(s) for s in sources]
     save_config(cfg, out / "config.json")
-    atomic_write_json(out / "pooled.json", {"runs": report["pooled_from"], "seeds": [list(g) for g in seeds]})
+    atomic_write_json(
+        out / "pooled.json", {"folders": report["pooled_from"], "runs": [list(map(str, g)) for g in runs]}
+    )
     return write_report(out, report)
 
 
