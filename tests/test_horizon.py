@@ -53,20 +53,11 @@ def test_tally_splits_successes_by_the_short_limit_and_counts_outcomes_that_diff
     def rec(seed, success, length, arm="gaze@s0"):
         return dict(arm=arm, task="t", seed=seed, condition="clean", success=success, length=length)
 
-    long = [
-        rec(0, True, 10),
-        rec(1, True, 90),
-        rec(2, False, 120),
-        rec(3, True, 12),
-        rec(0, True, 5, "baseline@s1"),
-    ]
-    short = [
-        rec(0, True, 10),
-        rec(1, False, 20),
-        rec(2, False, 20),
-        rec(3, False, 20),
-        rec(0, True, 5, "baseline@s1"),
-    ]
+    # (seed, success, length) with a 500-step limit and with the experiment's 20
+    long = [rec(*x) for x in ((0, True, 10), (1, True, 90), (2, False, 120), (3, True, 12))]
+    short = [rec(s, False, 20) for s in (1, 2, 3)] + [rec(0, True, 10)]
+    long.append(rec(0, True, 5, "baseline@s1"))
+    short.append(rec(0, True, 5, "baseline@s1"))
     t = tally(long, short, limit=20)
     assert t["gaze"] == dict(episodes=4, within_short=2, within_long=3, only_long=1, mismatches=1)  # seed 3
     assert t["baseline"] == dict(episodes=1, within_short=1, within_long=1, only_long=0, mismatches=0)
