@@ -271,4 +271,5 @@ def test_two_processes_average_the_heads_gradients(tiny_store, tmp_path):
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=240, env=env, cwd=ROOT)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     heads = dict(line.split()[1:] for line in r.stdout.splitlines() if line.startswith("head "))
-    assert set(heads) == {"0", "1"} and heads["0"] == heads["1"]  # the ranks' heads stay the same
+    assert set(heads) == {"0", "1"}, r.stdout[-3000:] + r.stderr[-3000:]
+    assert heads["0"] == heads["1"]  # the ranks' heads stay the same
