@@ -82,7 +82,14 @@ def attention_rows(
     return torch.softmax(logits, dim=-1)
 
 
-def _keep(t: Tensor) -> Tensor:
+def _pack(t: Tensor) -> Tensor:
+    """A saved tensor as a detached alias (same storage, no autograd history): returning `t` itself would tie a
+    saved output to the node that saves it, a reference cycle that only backward breaks, so a capture whose
+    attention never reaches a loss (the location control logs it detached) kept every step's graph alive."""
+    return t.detach()
+
+
+def _unpack(t: Tensor) -> Tensor:
     return t
 
 
@@ -94,7 +101,7 @@ def own_saved_tensors() -> contextlib.AbstractContextManager[None]:
     would count their saved tensors and find fewer on recomputation (the capture is not repeated in backward),
     failing with CheckpointError. Kept outside the checkpoint, they cost a little memory on the probed layers
     only, and their gradient still reaches q and k through the recomputed region."""
-    return torch.autograd.graph.saved_tensors_hooks(_keep, _keep)
+    return torch.autograd.graph.saved_tensors_hooks(_pack, _unpack)
 
 
 def require_grad_mode(expect_grad: bool, where: str) -> None:
