@@ -65,3 +65,30 @@ def test_pooled_folders_report_what_one_run_of_every_seed_and_arm_reports(tmp_pa
         == 2
     )
     assert "one of the pooled folders" in capsys.readouterr().err
+
+
+def test_folders_with_other_demonstrations_or_another_glc_are_not_one_experiment(tmp_path):
+    from gazereg.experiment.pool import merge_outputs
+    from gazereg.report.build import StageOutputs
+    from gazereg.runtime.errors import UsageError
+
+    (tmp_path / "a" / "figures").mkdir(parents=True)
+    (tmp_path / "a" / "figures" / "attention.png").write_bytes(b"png")
+
+    def outputs(demos, glc, seconds):
+        return StageOutputs([], [], {**demos, "seconds": seconds}, glc, {}, {}, {}, "figures/attention.png",
+                            "2026-11-25 00:00 UTC", {"train": seconds})  # fmt: skip
+
+    demos, glc = {"episodes": 100, "frames": 8000}, {"checkpoint": "g", "eval": {"glc_f1": 0.9}, "seconds": 5}
+    a, b = tmp_path / "a", tmp_path / "b"
+    merged = merge_outputs([a, b], [outputs(demos, glc, 1.0), outputs(demos, None, 2.0)], tmp_path / "out")
+    assert merged.glc == glc and merged.stage_times == {
+        "train": 3.0
+    }  # durations may differ; a folder may lack GLC
+    with pytest.raises(UsageError, match="b's demonstrations differ"):
+        merge_outputs(
+            [a, b], [outputs(demos, glc, 1.0), outputs({**demos, "frames": 7999}, glc, 1.0)], tmp_path
+        )
+    other = {**glc, "eval": {"glc_f1": 0.8}}
+    with pytest.raises(UsageError, match="b's GLC differs"):
+        merge_outputs([a, b], [outputs(demos, glc, 1.0), outputs(demos, other, 1.0)], tmp_path)
