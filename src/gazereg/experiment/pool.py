@@ -26,12 +26,12 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-from gazereg.experiment.config import EXECUTION_KEYS, PRESETS, ExperimentConfig
-from gazereg.experiment.records import report_spec, with_added_keys
+from gazereg.experiment.config import PRESETS, ExperimentConfig
+from gazereg.experiment.records import report_spec
 from gazereg.experiment.runner import Experiment
 from gazereg.report.build import StageOutputs, build_report, write_report
 from gazereg.report.ids import RunId
-from gazereg.runtime.config import check_same_config, parse, save_config, split_preset, to_dict
+from gazereg.runtime.config import parse, save_config, split_preset
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_json
 
@@ -48,15 +48,10 @@ def source_outputs(cfg: ExperimentConfig, preset: str, source: Path) -> tuple[li
     unknown = [a for a in arms if a not in cfg.arms]
     if unknown:
         raise UsageError(f"--runs: {source} trained {unknown}, not in --arms {list(cfg.arms)}")
-    expected = replace(cfg, out=source, train_seeds=seeds, arms=arms)
-    check_same_config(
-        with_added_keys(saved, to_dict(ExperimentConfig()), to_dict(expected)),
-        expected,
-        ("out", *EXECUTION_KEYS),
-        source,
-        "only folders of the same experiment with other training seeds or arms can be pooled.",
+    exp = Experiment(replace(cfg, out=source, train_seeds=seeds, arms=arms), preset)
+    exp.check_resumable(
+        "only folders of the same experiment with other training seeds or arms can be pooled."
     )
-    exp = Experiment(expected, preset)
     return list(exp.run_dirs()), exp.stage_outputs(exp.finished())
 
 

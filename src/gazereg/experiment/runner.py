@@ -88,7 +88,11 @@ class Experiment:
         atomic_write_json(self.marker(stage), {**result, "seconds": seconds})
         return result
 
-    def check_resumable(self) -> None:
+    def check_resumable(
+        self,
+        advice: str = "its finished stages would be reused. Choose another --out, or delete the folder to "
+        "start over.",
+    ) -> None:
         """Refuse to continue a run folder whose finished stages were made with another configuration: they
         would be skipped and reported as this configuration's results. A key added to the configuration
         since the folder was made counts as its default (`records.with_added_keys`)."""
@@ -100,7 +104,7 @@ class Experiment:
             self.cfg,
             ("out", *EXECUTION_KEYS),
             self.out,
-            "its finished stages would be reused. Choose another --out, or delete the folder to start over.",
+            advice,
         )
 
     def finished(self) -> dict[str, Any]:
