@@ -3,6 +3,10 @@ holds its position, the actions point at it, and a 'square' gaze prior is a Gaus
 
 from __future__ import annotations
 
+import os
+import socket
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -73,3 +77,37 @@ def make_store(
 @pytest.fixture(scope="session")
 def tiny_store(tmp_path_factory) -> EpisodeStore:
     return make_store(tmp_path_factory.mktemp("store") / "demos")
+
+
+ROOT = Path(__file__).resolve().parents[2]
+TEARDOWN_ABORT = "terminate called without an active exception"
+
+
+@pytest.fixture
+def launch_two(tmp_path):
+    """launch_two(argv_for, done) -> (CompletedProcess, folder): `accelerate launch` of argv_for(folder) with
+    two CPU processes (Gloo) in a fresh folder under tmp_path.
+
+    Launched once more, in a new folder, only when a process aborted in teardown (std::terminate with no
+    exception, seen once in CI with torch 2.13) after done(folder) says the work was finished; any other
+    failure, or a second abort, is returned as it is."""
+    accelerate = Path(sys.executable).parent / "accelerate"
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+
+    def launch(argv_for, done):
+        for attempt in range(2):
+            folder = tmp_path / f"launch{attempt}"
+            folder.mkdir()
+            with socket.socket() as s:
+                s.bind(("127.0.0.1", 0))
+                port = s.getsockname()[1]
+            cmd = [str(accelerate), "launch", "--multi_gpu", "--num_processes", "2", "--num_machines", "1"]
+            cmd += ["--mixed_precision", "no", "--dynamo_backend", "no", "--main_process_port", str(port)]
+            r = subprocess.run(
+                cmd + argv_for(folder), capture_output=True, text=True, timeout=240, env=env, cwd=ROOT
+            )
+            if r.returncode == 0 or attempt or TEARDOWN_ABORT not in r.stderr or not done(folder):
+                return r, folder
+        raise AssertionError("unreachable")
+
+    return launch

@@ -5,10 +5,6 @@ import contextlib
 import dataclasses
 import json
 import math
-import os
-import socket
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -255,21 +251,17 @@ for i, batch in zip(range(3), run.loader):
     loop.step(run, i, batch)
 head = run.location_head.score.weight.double().sum().item()
 Path(sys.argv[2]).with_name(f"head{run.acc.process_index}").write_text(repr(head))  # ranks' prints interleave
+run.acc.end_training()
 """
 
 
-def test_two_processes_average_the_heads_gradients(tiny_store, tmp_path):
+def test_two_processes_average_the_heads_gradients(tiny_store, tmp_path, launch_two):
     script = tmp_path / "ddp_head.py"
     script.write_text(DDP_SCRIPT)
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    accelerate = Path(sys.executable).parent / "accelerate"
-    cmd = [str(accelerate), "launch", "--multi_gpu", "--num_processes", "2", "--num_machines", "1"]
-    cmd += ["--mixed_precision", "no", "--dynamo_backend", "no", "--main_process_port", str(port)]
-    cmd += [str(script), str(tiny_store.root), str(tmp_path / "run")]
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=240, env=env, cwd=ROOT)
+    r, folder = launch_two(
+        lambda folder: [str(script), str(tiny_store.root), str(folder / "run")],
+        lambda folder: (folder / "head0").is_file() and (folder / "head1").is_file(),
+    )
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    heads = [(tmp_path / f"head{rank}").read_text() for rank in (0, 1)]
+    heads = [(folder / f"head{rank}").read_text() for rank in (0, 1)]
     assert heads[0] == heads[1]  # the ranks' heads stay the same

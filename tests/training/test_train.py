@@ -1,9 +1,5 @@
 import dataclasses
 import json
-import os
-import socket
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -142,50 +138,14 @@ def test_flow_head_trains(tiny_store, tmp_path):
     assert out["step"] == 6 and load_policy(out["checkpoint"]).config.head == "flow"
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def test_two_process_cpu_ddp(tiny_store, launch_two):
+    def argv(folder):
+        args = ["-m", "gazereg.training.loop", "--preset", "smoke", "--data.store", str(tiny_store.root)]
+        args += ["--run-dir", str(folder / "ddp"), "--gaze.prior", "square", "--steps", "6"]
+        return args + ["--save-every", "6", "--eval-every", "6", "--log-every", "3"]
 
-
-def test_two_process_cpu_ddp(tiny_store, tmp_path):
-    run = tmp_path / "ddp"
-    accelerate = Path(sys.executable).parent / "accelerate"
-    cmd = [
-        str(accelerate),
-        "launch",
-        "--multi_gpu",
-        "--num_processes",
-        "2",
-        "--num_machines",
-        "1",
-        "--mixed_precision",
-        "no",
-        "--dynamo_backend",
-        "no",
-        "--main_process_port",
-        str(_free_port()),
-        "-m",
-        "gazereg.training.loop",
-        "--preset",
-        "smoke",
-        "--data.store",
-        str(tiny_store.root),
-        "--run-dir",
-        str(run),
-        "--gaze.prior",
-        "square",
-        "--steps",
-        "6",
-        "--save-every",
-        "6",
-        "--eval-every",
-        "6",
-        "--log-every",
-        "3",
-    ]
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=240, env=env, cwd=ROOT)
+    r, folder = launch_two(argv, lambda folder: (folder / "ddp/checkpoints/step_000006").is_dir())
+    run = folder / "ddp"
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     assert "2 process(es)" in r.stderr
     recs = read_metrics(run / "metrics.jsonl")
