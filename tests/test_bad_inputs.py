@@ -83,6 +83,8 @@ BAD_INPUTS = [
     (["experiment", "--convergence-points", "0"], 2, "--convergence-points must be"),
     (["experiment", "--threshold", "1"], 2, "--threshold must be"),
     (["experiment", "--figure-frames", "0"], 2, "--figure-frames must be"),
+    (["experiment", "--data-from"], 2, "--data-from needs the run folder"),
+    (["experiment", "--data-from", "{tmp}", "--out", "{tmp}/new"], 2, "holds no experiment (no config.json)"),
     # gazereg glc
     (["glc", "train", "--optim.steps", "0"], 2, "--optim.steps must be"),
     (["glc", "train", "--optim.lr", "0"], 2, "--optim.lr must be"),

@@ -13,16 +13,26 @@ SMALL = ["--preset", "smoke", "--eval.conditions", "clean", "--parallel", "1"]
 ARMS = ["--arms", "baseline", "gaze", "perturbed"]
 
 
-def _experiment(out, seeds, arms=("baseline", "gaze")):
+def _experiment(out, seeds, arms=("baseline", "gaze"), more=()):
     seeds = ["--train-seeds", *map(str, seeds)]
-    assert cli.main(["experiment", *SMALL, "--arms", *arms, *seeds, "--out", str(out)]) == 0
+    return cli.main(["experiment", *SMALL, "--arms", *arms, *seeds, "--out", str(out), *more])
 
 
 def test_pooled_folders_report_what_one_run_of_every_seed_and_arm_reports(tmp_path, capsys):
-    for seed in (0, 1):
-        _experiment(tmp_path / f"s{seed}", [seed])
-    _experiment(tmp_path / "perturbed", [0, 1], ["perturbed"])
-    _experiment(tmp_path / "both", [0, 1], ARMS[1:])
+    assert _experiment(tmp_path / "s0", [0]) == 0
+    assert _experiment(tmp_path / "s1", [1], more=["--data-from", str(tmp_path / "s0")]) == 0  # s0's demos
+    copied = json.loads((tmp_path / "s1" / "stages" / "priors.json").read_text())
+    assert copied["copied_from"] == str(tmp_path / "s0") and copied["seconds"] == 0.0
+    capsys.readouterr()  # refused, one line each: a prior s0 did not make, another config
+    assert _experiment(tmp_path / "p", [0], ["perturbed"], ["--data-from", str(tmp_path / "s0")]) == 2
+    assert "lacks what the arms ['perturbed'] train on: visuomotor-shuffled" in capsys.readouterr().err
+    other = ["--train.steps", "13", "--data-from", str(tmp_path / "s0")]
+    assert _experiment(tmp_path / "p", [2], more=other) == 2
+    assert "train.steps: 12 -> 13" in capsys.readouterr().err
+    has_its_own = ["--data-from", str(tmp_path / "s1")]
+    assert _experiment(tmp_path / "s0", [0], more=has_its_own) == 0  # a finished folder: nothing copied
+    assert _experiment(tmp_path / "perturbed", [0, 1], ["perturbed"]) == 0
+    assert _experiment(tmp_path / "both", [0, 1], ARMS[1:]) == 0
     runs = ["--runs", *(str(tmp_path / f) for f in ("s0", "s1", "perturbed"))]
     pooled = tmp_path / "pooled"
     assert cli.main(["pool", *SMALL, *ARMS, "--train-seeds", "0", "1", *runs, "--out", str(pooled)]) == 0
@@ -85,6 +95,8 @@ def test_folders_with_other_demonstrations_or_another_glc_are_not_one_experiment
     assert merged.glc == glc and merged.stage_times == {
         "train": 3.0
     }  # durations may differ; a folder may lack GLC
+    moved = {**glc, "checkpoint": "b/glc/final", "seconds": 0.0}  # each folder's GLC lives in the folder
+    assert merge_outputs([a, b], [outputs(demos, glc, 1.0), outputs(demos, moved, 1.0)], tmp_path).glc == glc
     with pytest.raises(UsageError, match="b's demonstrations differ"):
         merge_outputs(
             [a, b], [outputs(demos, glc, 1.0), outputs({**demos, "frames": 7999}, glc, 1.0)], tmp_path
@@ -92,3 +104,19 @@ def test_folders_with_other_demonstrations_or_another_glc_are_not_one_experiment
     other = {**glc, "eval": {"glc_f1": 0.8}}
     with pytest.raises(UsageError, match="b's GLC differs"):
         merge_outputs([a, b], [outputs(demos, glc, 1.0), outputs(demos, other, 1.0)], tmp_path)
+
+
+def test_a_copied_priors_record_names_the_glc_checkpoints_in_its_own_folder(tmp_path):
+    from gazereg.experiment.reuse import _moved
+
+    src, out = tmp_path / "s0", tmp_path / "s1"
+    record = {
+        "glc": {"checkpoint": str(src / "glc" / "final"), "eval": {"glc_f1": 0.9}, "seconds": 5.0},
+        "folds": [{"checkpoint": str(src / "glc" / "fold0" / "final")}, {"checkpoint": "/elsewhere/glc"}],
+        "seconds": 986.0,
+    }
+    assert _moved(record, src, out) == {
+        "glc": {"checkpoint": str(out / "glc" / "final"), "eval": {"glc_f1": 0.9}, "seconds": 0.0},
+        "folds": [{"checkpoint": str(out / "glc" / "fold0" / "final")}, {"checkpoint": "/elsewhere/glc"}],
+        "seconds": 0.0,
+    }

@@ -2,11 +2,13 @@
 
 `config` holds the configuration and its presets, `arms` what each arm trains on, `demos` and `glc` the
 demos stage's collections and the glc arm's GLC, `records` the saved config and the report's spec, `runner` the
-stages (see `gazereg.experiment.runner`), `pool` one report over folders that each ran some training seeds.
+stages (see `gazereg.experiment.runner`), `pool` one report over folders that each ran some training seeds, `reuse` a new folder from another's
+demos and priors, `cli` the command.
 Runs are named by `gazereg.report.ids.RunId` (arm, training seed, step).
 """
 
 from gazereg.experiment.arms import PriorSpec, arm_prior
+from gazereg.experiment.cli import main
 from gazereg.experiment.config import (
     PRESETS,
     ExperimentConfig,
@@ -17,7 +19,7 @@ from gazereg.experiment.config import (
     quick,
     smoke,
 )
-from gazereg.experiment.runner import STAGES, Experiment, main
+from gazereg.experiment.runner import STAGES, Experiment
 
 __all__ = [
     "PRESETS",

@@ -226,7 +226,8 @@ def paper() -> ExperimentConfig:
     (the prior supervising a head on the features, not attention) x 3 seeds; 50 unseen setups per task and
     condition (clean, dim, noise), paired across arms; checkpoints every 2,000 steps. Too long for one sitting
     on 2 cores, it runs one seed per folder (5 runs at once), then one report (`gazereg.experiment.pool`):
-        gazereg experiment --preset paper --train-seeds 0 --out runs/paper-s0     # then seeds 1 and 2
+        gazereg experiment --preset paper --train-seeds 0 --out runs/paper-s0
+        gazereg experiment --preset paper --train-seeds 1 --out runs/paper-s1 --data-from runs/paper-s0  # and 2
         gazereg pool --preset paper --runs runs/paper-s0 runs/paper-s1 runs/paper-s2 --out runs/paper"""
     return ExperimentConfig(
         out=Path("runs/paper"),

@@ -3,8 +3,8 @@ too long for one sitting, run one seed per folder (each folder a whole, resumabl
 run later on the same setups (ablations), then reported as one.
 
     gazereg experiment --preset paper --train-seeds 0 --out runs/paper-s0      # one sitting each
-    gazereg experiment --preset paper --train-seeds 1 --out runs/paper-s1
-    gazereg experiment --preset paper --train-seeds 2 --out runs/paper-s2
+    gazereg experiment --preset paper --train-seeds 1 --out runs/paper-s1 --data-from runs/paper-s0
+    gazereg experiment --preset paper --train-seeds 2 --out runs/paper-s2 --data-from runs/paper-s0
     gazereg pool --preset paper --runs runs/paper-s0 runs/paper-s1 runs/paper-s2 --out runs/paper
     gazereg experiment --preset paper --arms uniform --out runs/paper-uniform  # later, an ablation arm
     gazereg pool --preset paper --arms baseline gaze glc perturbed location uniform \
@@ -14,7 +14,8 @@ The pooled report is the one `gazereg experiment --preset paper --out runs/paper
 records: every folder must hold a finished experiment of the configuration given (`--out`, its seeds and arms
 aside, and the execution keys, which change how a run ran, not what it measured), each run (arm x seed) of
 `--arms` x `--train-seeds` must be in exactly one folder, and the folders' demonstrations and GLC records must
-be the same (each folder collects and trains them from the same seeds). Its wall time is the folders' summed.
+be the same (each folder collects and trains them from the same seeds, or copies them with `--data-from`,
+`gazereg.experiment.reuse`). Its wall time is the folders' summed.
 """
 
 from __future__ import annotations
@@ -62,12 +63,12 @@ def merge_outputs(sources: Sequence[Path], outputs: Sequence[StageOutputs], out:
     first = outputs[0]
     glcs = [(source, o.glc) for source, o in zip(sources, outputs) if o.glc is not None]
     for source, o in zip(sources[1:], outputs[1:]):
-        if _timeless(o.demos) != _timeless(first.demos):
+        if _comparable(o.demos) != _comparable(first.demos):
             raise UsageError(
                 f"--runs: {source}'s demonstrations differ from {sources[0]}'s: not one experiment"
             )
     for source, glc in glcs[1:]:
-        if _timeless(glc) != _timeless(glcs[0][1]):
+        if _comparable(glc) != _comparable(glcs[0][1]):
             raise UsageError(f"--runs: {source}'s GLC differs from {glcs[0][0]}'s: not one experiment")
     figure = Path("figures") / "attention.png"
     (out / figure).parent.mkdir(parents=True, exist_ok=True)
@@ -90,10 +91,13 @@ def merge_outputs(sources: Sequence[Path], outputs: Sequence[StageOutputs], out:
     )
 
 
-def _timeless(record: object) -> object:
-    """A stage record without its durations (keys `seconds`), which differ from run to run."""
+def _comparable(record: object) -> object:
+    """A stage record without what differs between folders of one experiment: durations (`seconds`) and the
+    paths of the GLC checkpoints each folder trained or copied (`checkpoint`)."""
     if isinstance(record, dict):
-        return {k: _timeless(v) for k, v in record.items() if k != "seconds"}
+        return {k: _comparable(v) for k, v in record.items() if k not in ("seconds", "checkpoint")}
+    if isinstance(record, list):
+        return [_comparable(v) for v in record]
     return record
 
 

@@ -29,8 +29,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import sys
-import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from datetime import datetime, timezone
@@ -45,7 +43,7 @@ from gazereg.evaluation.alignment import alignment_report, attention_maps
 from gazereg.evaluation.config import EvalConfig
 from gazereg.evaluation.rollout import evaluate
 from gazereg.experiment.arms import PriorSpec, arm_prior, gaze_prior, gaze_target, trains_glc
-from gazereg.experiment.config import EXECUTION_KEYS, PRESETS, ExperimentConfig
+from gazereg.experiment.config import EXECUTION_KEYS, ExperimentConfig
 from gazereg.experiment.demos import collection_result, demo_collections, demo_stores
 from gazereg.experiment.glc import train_glc, train_glc_folds
 from gazereg.experiment.records import report_spec, with_added_keys
@@ -55,7 +53,7 @@ from gazereg.report.build import StageOutputs, build_report, write_report
 from gazereg.report.figures import attention_panels, plot_attention
 from gazereg.report.ids import RunId
 from gazereg.runtime.clock import ResumableClock
-from gazereg.runtime.config import check_same_config, parse, save_config, split_preset, to_dict
+from gazereg.runtime.config import check_same_config, save_config, to_dict
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_json, sweep_stale_temps
 from gazereg.training.checkpoint import latest_checkpoint, list_checkpoints
@@ -351,21 +349,3 @@ def _train_one(cfg: TrainConfig) -> dict[str, Any]:
         "resumed": resume,
         "final_metrics": res["metrics"],
     }
-
-
-def main(argv: list[str] | None = None) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    args = sys.argv[1:] if argv is None else argv
-    preset, _ = split_preset(args, "quick")
-    cfg = parse(PRESETS, args, prog="gazereg experiment", description=__doc__ or "")
-    t0 = time.perf_counter()
-    Experiment(cfg, preset).run()
-    print((Path(cfg.out) / "report.md").read_text())
-    print(
-        f"experiment finished in {(time.perf_counter() - t0) / 60:.1f} min; report: {Path(cfg.out) / 'report.md'}"
-    )
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,0 +1,36 @@
+"""`gazereg experiment [--preset NAME] [--data-from FOLDER] [--dotted.flags ...]`: run (or resume) an experiment
+into `--out` and print its report (stages: `gazereg.experiment.runner`; `--data-from`:
+`gazereg.experiment.reuse`)."""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from pathlib import Path
+
+from gazereg.experiment.config import PRESETS
+from gazereg.experiment.reuse import reuse_data, take_data_from
+from gazereg.experiment.runner import Experiment
+from gazereg.experiment.runner import __doc__ as RUNNER_DOC
+from gazereg.runtime.config import parse, split_preset
+
+
+def main(argv: list[str] | None = None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    source, args = take_data_from(sys.argv[1:] if argv is None else argv)
+    preset, _ = split_preset(args, "quick")
+    cfg = parse(PRESETS, args, prog="gazereg experiment", description=RUNNER_DOC or "")
+    t0 = time.perf_counter()
+    if source is not None:
+        reuse_data(cfg, preset, source)
+    Experiment(cfg, preset).run()
+    print((Path(cfg.out) / "report.md").read_text())
+    print(
+        f"experiment finished in {(time.perf_counter() - t0) / 60:.1f} min; report: {Path(cfg.out) / 'report.md'}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

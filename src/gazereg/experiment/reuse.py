@@ -1,0 +1,128 @@
+"""`gazereg experiment --data-from FOLDER`: start a new run folder from another folder's finished demos and
+priors stages (its demonstration stores with their priors, and its GLC) instead of collecting and training
+them again. For the seed folders of a preset run one seed per sitting and pooled with `gazereg pool`:
+
+    gazereg experiment --preset paper --train-seeds 0 --out runs/paper-s0
+    gazereg experiment --preset paper --train-seeds 1 --out runs/paper-s1 --data-from runs/paper-s0
+
+The source must hold a finished demos and priors stage of the same experiment (its training seeds and arms
+aside, as `gazereg pool` asks) with every prior this folder's arms train on. The copies' stage records name
+the source and count 0 s, so a pooled report's wall time counts the work once.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from gazereg.experiment.arms import glc_dir, trains_glc
+from gazereg.experiment.config import ExperimentConfig
+from gazereg.experiment.demos import demo_stores
+from gazereg.experiment.runner import Experiment
+from gazereg.runtime.errors import UsageError
+from gazereg.runtime.io import atomic_write_json
+
+DATA_STAGES = ("demos", "priors")
+
+
+def data_dirs(cfg: ExperimentConfig) -> list[Path]:
+    """Every folder the demos and priors stages write under `cfg.out`: the stores (priors inside) and GLCs."""
+    return [*demo_stores(Path(cfg.out)).values(), glc_dir(cfg)]
+
+
+def take_data_from(argv: Sequence[str]) -> tuple[Path | None, list[str]]:
+    """Remove `--data-from FOLDER` from argv: (the folder or None, the rest)."""
+    rest, source = list(argv), None
+    if "--data-from" in rest:
+        at = rest.index("--data-from")
+        if at + 1 >= len(rest) or rest[at + 1].startswith("--"):
+            raise UsageError("--data-from needs the run folder whose demos and priors to copy")
+        source = Path(rest[at + 1])
+        del rest[at : at + 2]
+    return source, rest
+
+
+def check_source(cfg: ExperimentConfig, preset: str, source: Path) -> dict[str, dict[str, Any]]:
+    """The source's demos and priors stage records, refused (UsageError) unless it is the same experiment
+    with both stages finished and every prior (and the GLC) this folder's arms need."""
+    saved_file = source / "config.json"
+    if not saved_file.is_file():
+        raise UsageError(f"--data-from: {source} holds no experiment (no config.json)")
+    saved = json.loads(saved_file.read_text())
+    seeds, arms = tuple(int(s) for s in saved.get("train_seeds", ())), tuple(saved.get("arms", ()))
+    src = Experiment(replace(cfg, out=source, train_seeds=seeds, arms=arms), preset)
+    src.check_resumable(
+        "--data-from takes a folder of the same experiment with other training seeds or arms."
+    )
+    records = {}
+    for stage in DATA_STAGES:
+        record = src.done(stage)
+        if record is None:
+            raise UsageError(f"--data-from: {source} has not finished its {stage} stage")
+        records[stage] = record
+    missing = [
+        p.name
+        for p in Experiment(cfg, preset).priors_needed()
+        if f"demos/{p.name}" not in records["priors"]["priors"]
+    ]
+    if trains_glc(cfg) and records["priors"].get("glc") is None:
+        missing.append("its GLC")
+    if missing:
+        raise UsageError(
+            f"--data-from: {source} lacks what the arms {list(cfg.arms)} train on: {', '.join(missing)}"
+        )
+    return records
+
+
+def _moved(value: Any, source: Path, out: Path) -> Any:
+    """A stage record with the GLC checkpoint paths under `source` moved under `out` and its durations 0."""
+    if isinstance(value, dict):
+        return {k: _moved_item(k, v, source, out) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_moved(v, source, out) for v in value]
+    return value
+
+
+def _moved_item(key: str, value: Any, source: Path, out: Path) -> Any:
+    if key == "seconds":
+        return 0.0
+    if key == "checkpoint" and isinstance(value, str):
+        try:
+            return str(out / Path(value).resolve().relative_to(source.resolve()))
+        except ValueError:  # a GLC from outside the folder (--glc.checkpoint) stays where it is
+            return value
+    return _moved(value, source, out)
+
+
+def reuse_data(cfg: ExperimentConfig, preset: str, source: Path) -> None:
+    """Copy `source`'s demos and priors stages into `cfg.out` (nothing to do when both are there already);
+    the stage records are written last, so a killed copy leaves the stages unfinished."""
+    exp, out = Experiment(cfg, preset), Path(cfg.out)
+    if source.resolve() == out.resolve():
+        raise UsageError(f"--data-from {source} is --out itself: name another folder")
+    if all(exp.done(stage) is not None for stage in DATA_STAGES):
+        return
+    if any(exp.done(stage) is not None for stage in DATA_STAGES):
+        raise UsageError(f"--data-from: {out} has begun its own demonstrations; choose a new --out")
+    records = check_source(cfg, preset, source)
+    found = [d.name for d in data_dirs(cfg) if d.exists()]
+    if found:
+        raise UsageError(
+            f"--data-from: {out} already holds {', '.join(found)} without finished stages (a killed run?); "
+            "delete them or choose a new --out"
+        )
+    exp.check_resumable()
+    src_cfg = replace(cfg, out=source)
+    for src_dir, dst_dir in zip(data_dirs(src_cfg), data_dirs(cfg)):
+        if src_dir.exists():
+            tmp = dst_dir.with_name(f".{dst_dir.name}.copying")
+            shutil.rmtree(tmp, ignore_errors=True)
+            shutil.copytree(src_dir, tmp)
+            tmp.rename(dst_dir)
+    for stage in DATA_STAGES:
+        record = {**_moved(records[stage], source, out), "copied_from": str(source)}
+        atomic_write_json(exp.marker(stage), record)
