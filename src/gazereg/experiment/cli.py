@@ -9,8 +9,8 @@ import sys
 import time
 from pathlib import Path
 
+from gazereg.experiment import reuse
 from gazereg.experiment.config import PRESETS
-from gazereg.experiment.reuse import reuse_data, take_data_from
 from gazereg.experiment.runner import Experiment
 from gazereg.experiment.runner import __doc__ as RUNNER_DOC
 from gazereg.runtime.config import parse, split_preset
@@ -18,12 +18,12 @@ from gazereg.runtime.config import parse, split_preset
 
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    source, args = take_data_from(sys.argv[1:] if argv is None else argv)
+    source, args = reuse.take_data_from(sys.argv[1:] if argv is None else argv)
     preset, _ = split_preset(args, "quick")
-    cfg = parse(PRESETS, args, prog="gazereg experiment", description=RUNNER_DOC or "")
+    cfg = parse(PRESETS, args, prog="gazereg experiment", description=f"{RUNNER_DOC}\n{reuse.__doc__}")
     t0 = time.perf_counter()
     if source is not None:
-        reuse_data(cfg, preset, source)
+        reuse.reuse_data(cfg, preset, source)
     Experiment(cfg, preset).run()
     print((Path(cfg.out) / "report.md").read_text())
     print(
