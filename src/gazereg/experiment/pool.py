@@ -20,11 +20,9 @@ be the same (each folder collects and trains them from the same seeds, or copies
 
 from __future__ import annotations
 
-import json
 import shutil
 import sys
 from collections.abc import Sequence
-from dataclasses import replace
 from pathlib import Path
 
 from gazereg.experiment.config import PRESETS, ExperimentConfig
@@ -40,19 +38,10 @@ from gazereg.runtime.io import atomic_write_json
 def source_outputs(cfg: ExperimentConfig, preset: str, source: Path) -> tuple[list[RunId], StageOutputs]:
     """(the runs, the stage outputs) of the finished experiment in `source`, refused (UsageError naming the
     differing keys) when it ran another configuration than `cfg` apart from its seeds and arms."""
-    saved_file = source / "config.json"
-    if not saved_file.is_file():
-        raise UsageError(f"--runs: {source} holds no experiment (no config.json)")
-    saved = json.loads(saved_file.read_text())
-    seeds = tuple(int(s) for s in saved.get("train_seeds", ()))
-    arms = tuple(saved.get("arms", ()))
-    unknown = [a for a in arms if a not in cfg.arms]
+    exp = Experiment(cfg, preset).sibling(source, "--runs")
+    unknown = [a for a in exp.cfg.arms if a not in cfg.arms]
     if unknown:
         raise UsageError(f"--runs: {source} trained {unknown}, not in --arms {list(cfg.arms)}")
-    exp = Experiment(replace(cfg, out=source, train_seeds=seeds, arms=arms), preset)
-    exp.check_resumable(
-        "only folders of the same experiment with other training seeds or arms can be pooled."
-    )
     return list(exp.run_dirs()), exp.stage_outputs(exp.finished())
 
 

@@ -12,7 +12,6 @@ the source and count 0 s, so a pooled report's wall time counts the work once.
 
 from __future__ import annotations
 
-import json
 import shutil
 from collections.abc import Sequence
 from dataclasses import replace
@@ -49,15 +48,7 @@ def take_data_from(argv: Sequence[str]) -> tuple[Path | None, list[str]]:
 def check_source(cfg: ExperimentConfig, preset: str, source: Path) -> dict[str, dict[str, Any]]:
     """The source's demos and priors stage records, refused (UsageError) unless it is the same experiment
     with both stages finished and every prior (and the GLC) this folder's arms need."""
-    saved_file = source / "config.json"
-    if not saved_file.is_file():
-        raise UsageError(f"--data-from: {source} holds no experiment (no config.json)")
-    saved = json.loads(saved_file.read_text())
-    seeds, arms = tuple(int(s) for s in saved.get("train_seeds", ())), tuple(saved.get("arms", ()))
-    src = Experiment(replace(cfg, out=source, train_seeds=seeds, arms=arms), preset)
-    src.check_resumable(
-        "--data-from takes a folder of the same experiment with other training seeds or arms."
-    )
+    src = Experiment(cfg, preset).sibling(source, "--data-from")
     records = {}
     for stage in DATA_STAGES:
         record = src.done(stage)

@@ -105,6 +105,20 @@ class Experiment:
             advice,
         )
 
+    def sibling(self, folder: Path, flag: str) -> Experiment:
+        """The experiment in `folder`, refused (UsageError naming `flag` and the differing keys) unless it ran
+        this configuration but for its training seeds and arms (and execution keys)."""
+        saved_file = folder / "config.json"
+        if not saved_file.is_file():
+            raise UsageError(f"{flag}: {folder} holds no experiment (no config.json)")
+        saved = json.loads(saved_file.read_text())
+        seeds, arms = tuple(int(s) for s in saved.get("train_seeds", ())), tuple(saved.get("arms", ()))
+        other = Experiment(replace(self.cfg, out=folder, train_seeds=seeds, arms=arms), self.preset)
+        other.check_resumable(
+            f"{flag} takes folders of the same experiment with other training seeds or arms."
+        )
+        return other
+
     def finished(self) -> dict[str, Any]:
         """Every stage's record but the report's, read back from a finished run folder (their times into
         `times`); a UsageError names the first stage not finished."""
