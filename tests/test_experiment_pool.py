@@ -19,19 +19,24 @@ def _experiment(out, seeds, arms=("baseline", "gaze"), more=()):
 
 
 def test_pooled_folders_report_what_one_run_of_every_seed_and_arm_reports(tmp_path, capsys):
+    s0 = ["--data-from", str(tmp_path / "s0")]
     assert _experiment(tmp_path / "s0", [0]) == 0
-    assert _experiment(tmp_path / "s1", [1], more=["--data-from", str(tmp_path / "s0")]) == 0  # s0's demos
-    copied = json.loads((tmp_path / "s1" / "stages" / "priors.json").read_text())
-    assert copied["copied_from"] == str(tmp_path / "s0") and copied["seconds"] == 0.0
-    capsys.readouterr()  # refused, one line each: a prior s0 did not make, another config
-    assert _experiment(tmp_path / "p", [0], ["perturbed"], ["--data-from", str(tmp_path / "s0")]) == 2
-    assert "lacks what the arms ['perturbed'] train on: visuomotor-shuffled" in capsys.readouterr().err
-    other = ["--train.steps", "13", "--data-from", str(tmp_path / "s0")]
-    assert _experiment(tmp_path / "p", [2], more=other) == 2
+    assert _experiment(tmp_path / "s1", [1], more=s0) == 0  # s0's demos and priors
+    assert _experiment(tmp_path / "perturbed", [0, 1], ["perturbed"], s0) == 0  # s0's demos; its own priors
+    for folder, stage, copied in (
+        ("s1", "priors", True),
+        ("perturbed", "demos", True),
+        ("perturbed", "priors", False),
+    ):
+        record = json.loads((tmp_path / folder / "stages" / f"{stage}.json").read_text())
+        assert (record.get("copied_from") == str(tmp_path / "s0")) == copied, (folder, stage)
+        assert (record["seconds"] == 0.0) == copied, (folder, stage)
+    capsys.readouterr()  # refused, one line: another configuration
+    assert _experiment(tmp_path / "p", [2], more=["--train.steps", "13", *s0]) == 2
     assert "train.steps: 12 -> 13" in capsys.readouterr().err
-    has_its_own = ["--data-from", str(tmp_path / "s1")]
-    assert _experiment(tmp_path / "s0", [0], more=has_its_own) == 0  # a finished folder: nothing copied
-    assert _experiment(tmp_path / "perturbed", [0, 1], ["perturbed"]) == 0
+    assert (
+        _experiment(tmp_path / "s0", [0], more=["--data-from", str(tmp_path / "s1")]) == 0
+    )  # nothing copied
     assert _experiment(tmp_path / "both", [0, 1], ARMS[1:]) == 0
     runs = ["--runs", *(str(tmp_path / f) for f in ("s0", "s1", "perturbed"))]
     pooled = tmp_path / "pooled"

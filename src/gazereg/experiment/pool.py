@@ -6,7 +6,7 @@ run later on the same setups (ablations), then reported as one.
     gazereg experiment --preset paper --train-seeds 1 --out runs/paper-s1 --data-from runs/paper-s0
     gazereg experiment --preset paper --train-seeds 2 --out runs/paper-s2 --data-from runs/paper-s0
     gazereg pool --preset paper --runs runs/paper-s0 runs/paper-s1 runs/paper-s2 --out runs/paper
-    gazereg experiment --preset paper --arms uniform --out runs/paper-uniform  # later, an ablation arm
+    gazereg experiment --preset paper --arms uniform --out runs/paper-uniform --data-from runs/paper-s0  # later
     gazereg pool --preset paper --arms baseline gaze glc perturbed location uniform \
         --runs runs/paper-s0 runs/paper-s1 runs/paper-s2 runs/paper-uniform --out runs/paper-ablations
 

@@ -1,17 +1,20 @@
-"""`gazereg experiment --data-from FOLDER`: start a new run folder from another folder's finished demos and
-priors stages (its demonstration stores with their priors, and its GLC) instead of collecting and training
-them again. For the seed folders of a preset run one seed per sitting and pooled with `gazereg pool`:
+"""`gazereg experiment --data-from FOLDER`: start a new run folder from another folder's finished demos stage
+(its demonstration stores, priors inside, and its GLC) and, when that folder made every prior this one's arms
+train on, its priors stage, instead of collecting and training them again. For the seed folders of a preset
+run one seed per sitting, and arms added later, pooled with `gazereg pool`:
 
     gazereg experiment --preset paper --train-seeds 0 --out runs/paper-s0
     gazereg experiment --preset paper --train-seeds 1 --out runs/paper-s1 --data-from runs/paper-s0
+    gazereg experiment --preset paper --arms uniform --out runs/paper-uniform --data-from runs/paper-s0
 
-The source must hold a finished demos and priors stage of the same experiment (its training seeds and arms
-aside, as `gazereg pool` asks) with every prior this folder's arms train on. The copies' stage records name
-the source and count 0 s, so a pooled report's wall time counts the work once.
+The source must be the same experiment but for its training seeds and arms (as `gazereg pool` asks). When it
+lacks a prior (here `uniform`), the priors stage runs in the new folder on the copied demonstrations. The
+copied stages' records name the source and count 0 s, so a pooled report's wall time counts the work once.
 """
 
 from __future__ import annotations
 
+import logging
 import shutil
 from collections.abc import Sequence
 from dataclasses import replace
@@ -24,6 +27,8 @@ from gazereg.experiment.demos import demo_stores
 from gazereg.experiment.runner import Experiment
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_json
+
+log = logging.getLogger(__name__)
 
 DATA_STAGES = ("demos", "priors")
 
@@ -45,28 +50,20 @@ def take_data_from(argv: Sequence[str]) -> tuple[Path | None, list[str]]:
     return source, rest
 
 
-def check_source(cfg: ExperimentConfig, preset: str, source: Path) -> dict[str, dict[str, Any]]:
-    """The source's demos and priors stage records, refused (UsageError) unless it is the same experiment
-    with both stages finished and every prior (and the GLC) this folder's arms need."""
+def check_source(cfg: ExperimentConfig, preset: str, source: Path) -> tuple[dict[str, dict], list[str]]:
+    """(the source's finished demos and priors stage records, what of the priors this folder's arms need it
+    lacks); refused (UsageError) unless it is the same experiment with its demos stage finished."""
     src = Experiment(cfg, preset).sibling(source, "--data-from")
-    records = {}
-    for stage in DATA_STAGES:
-        record = src.done(stage)
-        if record is None:
-            raise UsageError(f"--data-from: {source} has not finished its {stage} stage")
-        records[stage] = record
-    missing = [
-        p.name
-        for p in Experiment(cfg, preset).priors_needed()
-        if f"demos/{p.name}" not in records["priors"]["priors"]
-    ]
-    if trains_glc(cfg) and records["priors"].get("glc") is None:
+    records = {stage: r for stage in DATA_STAGES if (r := src.done(stage)) is not None}
+    if "demos" not in records:
+        raise UsageError(f"--data-from: {source} has not finished its demos stage")
+    made = records.get("priors", {}).get("priors", [])
+    missing = [p.name for p in Experiment(cfg, preset).priors_needed() if f"demos/{p.name}" not in made]
+    if "priors" not in records:
+        missing = ["every prior (its priors stage is not finished)"]
+    elif trains_glc(cfg) and records["priors"].get("glc") is None:
         missing.append("its GLC")
-    if missing:
-        raise UsageError(
-            f"--data-from: {source} lacks what the arms {list(cfg.arms)} train on: {', '.join(missing)}"
-        )
-    return records
+    return records, missing
 
 
 def _moved(value: Any, source: Path, out: Path) -> Any:
@@ -90,16 +87,16 @@ def _moved_item(key: str, value: Any, source: Path, out: Path) -> Any:
 
 
 def reuse_data(cfg: ExperimentConfig, preset: str, source: Path) -> None:
-    """Copy `source`'s demos and priors stages into `cfg.out` (nothing to do when both are there already);
-    the stage records are written last, so a killed copy leaves the stages unfinished."""
+    """Copy `source`'s demonstrations (and its priors stage when it has every prior needed) into `cfg.out`;
+    nothing to do once `cfg.out` has its demos stage. Stage records are written last, so a killed copy
+    leaves its stages unfinished."""
     exp, out = Experiment(cfg, preset), Path(cfg.out)
     if source.resolve() == out.resolve():
         raise UsageError(f"--data-from {source} is --out itself: name another folder")
-    if all(exp.done(stage) is not None for stage in DATA_STAGES):
+    if exp.done("demos") is not None:
+        log.info("--data-from: %s has its demonstrations already; nothing copied", out)
         return
-    if any(exp.done(stage) is not None for stage in DATA_STAGES):
-        raise UsageError(f"--data-from: {out} has begun its own demonstrations; choose a new --out")
-    records = check_source(cfg, preset, source)
+    records, missing = check_source(cfg, preset, source)
     found = [d.name for d in data_dirs(cfg) if d.exists()]
     if found:
         raise UsageError(
@@ -107,13 +104,15 @@ def reuse_data(cfg: ExperimentConfig, preset: str, source: Path) -> None:
             "delete them or choose a new --out"
         )
     exp.check_resumable()
-    src_cfg = replace(cfg, out=source)
-    for src_dir, dst_dir in zip(data_dirs(src_cfg), data_dirs(cfg)):
+    for src_dir, dst_dir in zip(data_dirs(replace(cfg, out=source)), data_dirs(cfg)):
         if src_dir.exists():
             tmp = dst_dir.with_name(f".{dst_dir.name}.copying")
             shutil.rmtree(tmp, ignore_errors=True)
             shutil.copytree(src_dir, tmp)
             tmp.rename(dst_dir)
-    for stage in DATA_STAGES:
+    copied = ["demos"] if missing else list(DATA_STAGES)
+    if missing:
+        log.info("--data-from: the priors stage runs here; %s lacks %s", source, ", ".join(missing))
+    for stage in copied:
         record = {**_moved(records[stage], source, out), "copied_from": str(source)}
         atomic_write_json(exp.marker(stage), record)
