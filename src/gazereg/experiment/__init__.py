@@ -2,8 +2,8 @@
 
 `config` holds the configuration and its presets, `arms` what each arm trains on, `demos` and `glc` the
 demos stage's collections and the glc arm's GLC, `records` the saved config and the report's spec, `runner` the
-stages (see `gazereg.experiment.runner`), `pool` one report over folders that each ran some training seeds, `reuse` a new folder from another's
-demos and priors, `cli` the command.
+stages (see `gazereg.experiment.runner`), `pool` one report over folders that each ran some training seeds,
+`reuse` a new folder from another's demos and priors, `cli` the command.
 Runs are named by `gazereg.report.ids.RunId` (arm, training seed, step).
 """
 

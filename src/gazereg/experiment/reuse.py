@@ -26,7 +26,7 @@ from gazereg.experiment.config import ExperimentConfig
 from gazereg.experiment.demos import demo_stores
 from gazereg.experiment.runner import Experiment
 from gazereg.runtime.errors import UsageError
-from gazereg.runtime.io import atomic_write_json
+from gazereg.runtime.io import atomic_dir, atomic_write_json
 
 log = logging.getLogger(__name__)
 
@@ -50,18 +50,18 @@ def take_data_from(argv: Sequence[str]) -> tuple[Path | None, list[str]]:
     return source, rest
 
 
-def check_source(cfg: ExperimentConfig, preset: str, source: Path) -> tuple[dict[str, dict], list[str]]:
-    """(the source's finished demos and priors stage records, what of the priors this folder's arms need it
-    lacks); refused (UsageError) unless it is the same experiment with its demos stage finished."""
-    src = Experiment(cfg, preset).sibling(source, "--data-from")
+def check_source(exp: Experiment, source: Path) -> tuple[dict[str, dict], list[str]]:
+    """(the source's finished demos and priors stage records, what of the priors `exp`'s arms need it lacks);
+    refused (UsageError) unless it is the same experiment with its demos stage finished."""
+    src = exp.sibling(source, "--data-from")
     records = {stage: r for stage in DATA_STAGES if (r := src.done(stage)) is not None}
     if "demos" not in records:
         raise UsageError(f"--data-from: {source} has not finished its demos stage")
-    made = records.get("priors", {}).get("priors", [])
-    missing = [p.name for p in Experiment(cfg, preset).priors_needed() if f"demos/{p.name}" not in made]
     if "priors" not in records:
-        missing = ["every prior (its priors stage is not finished)"]
-    elif trains_glc(cfg) and records["priors"].get("glc") is None:
+        return records, ["every prior (its priors stage is not finished)"]
+    made = records["priors"]["priors"]
+    missing = [p.name for p in exp.priors_needed() if f"demos/{p.name}" not in made]
+    if trains_glc(exp.cfg) and records["priors"].get("glc") is None:
         missing.append("its GLC")
     return records, missing
 
@@ -96,7 +96,7 @@ def reuse_data(cfg: ExperimentConfig, preset: str, source: Path) -> None:
     if exp.done("demos") is not None:
         log.info("--data-from: %s has its demonstrations already; nothing copied", out)
         return
-    records, missing = check_source(cfg, preset, source)
+    records, missing = check_source(exp, source)
     found = [d.name for d in data_dirs(cfg) if d.exists()]
     if found:
         raise UsageError(
@@ -106,10 +106,8 @@ def reuse_data(cfg: ExperimentConfig, preset: str, source: Path) -> None:
     exp.check_resumable()
     for src_dir, dst_dir in zip(data_dirs(replace(cfg, out=source)), data_dirs(cfg)):
         if src_dir.exists():
-            tmp = dst_dir.with_name(f".{dst_dir.name}.copying")
-            shutil.rmtree(tmp, ignore_errors=True)
-            shutil.copytree(src_dir, tmp)
-            tmp.rename(dst_dir)
+            with atomic_dir(dst_dir) as tmp:
+                shutil.copytree(src_dir, tmp, dirs_exist_ok=True)
     copied = ["demos"] if missing else list(DATA_STAGES)
     if missing:
         log.info("--data-from: the priors stage runs here; %s lacks %s", source, ", ".join(missing))
