@@ -11,6 +11,7 @@ from gazereg.report import (
     paired_tests,
     per_seed_table,
     results_block,
+    seed_level_tests,
     success_table,
     verdict,
 )
@@ -58,6 +59,25 @@ def test_paired_tests_pair_by_seed_and_task():
     ]
     v = verdict(success_table(records("baseline@s0", [1, 0]) + records("gaze@s0", [0, 1])))
     assert "overlap, so this budget does not decide" in v[0]
+
+
+def test_seed_level_tests_take_the_seed_as_the_unit():
+    recs = (
+        records("baseline@s0", [0] * 20)
+        + records("gaze@s0", [1] * 20)  # seed 0: +1.0
+        + records("baseline@s1", [1] * 20)
+        + records("gaze@s1", [1] * 15 + [0] * 5)  # seed 1: -0.25
+        + records("gaze@s2", [1] * 20)  # no baseline at seed 2: no pairs there
+    )
+    t = seed_level_tests(recs)["gaze vs baseline | clean"]
+    assert t["seeds"] == [0, 1] and t["diffs"] == [1.0, -0.25] and t["mean_diff"] == pytest.approx(0.375)
+    assert (t["above"], t["below"]) == (1, 1) and t["ci95"][0] < 0 < t["ci95"][1]
+    # Pooled over episodes the same data look decisive; the seeds do not.
+    assert paired_tests(recs)["gaze vs baseline | clean"]["mcnemar_p"] < 0.05
+    v = verdict(success_table(recs), paired=paired_tests(recs), seed_level=seed_level_tests(recs))
+    assert "gaze is better" in v[0] and "Seed level (2 seeds): mean +0.38" in v[0]
+    assert "1 of 2 above 0 and 1 below" in v[0] and "includes 0: the seeds do not settle it" in v[0]
+    assert seed_level_tests(records("baseline@s0", [0, 1]) + records("gaze@s0", [1, 1])) == {}
 
 
 def test_distances_pool_seeds_and_pair_by_setup():

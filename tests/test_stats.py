@@ -8,7 +8,10 @@ from gazereg.evaluation.stats import (
     fisher_exact,
     mcnemar_exact,
     paired_rate_difference,
+    seed_mean_difference,
     steps_to_threshold,
+    student_t_cdf,
+    student_t_quantile,
     wilson,
 )
 
@@ -119,3 +122,40 @@ def test_pairs_for_power_is_the_smallest_size_reaching_it():
     assert mcnemar_power(0.1, 0.1, 200) < 0.1  # no effect: power stays near alpha
     with pytest.raises(ValueError):
         mcnemar_power(0.0, 0.0, 10)
+
+
+def test_student_t_matches_known_values_and_limits():
+    assert student_t_cdf(0.0, 3) == 0.5
+    assert student_t_cdf(1.0, 1) == pytest.approx(0.75)  # Cauchy: 1/2 + atan(1)/pi
+    assert student_t_cdf(-1.0, 2) == pytest.approx(0.5 - 0.5 / math.sqrt(3))  # df 2: t / (2 sqrt(2 + t^2))
+    # Two-sided 5% critical values from any t table, and the normal limit.
+    for df, t in [(1, 12.7062), (2, 4.3027), (4, 2.7764), (9, 2.2622), (30, 2.0423)]:
+        assert student_t_quantile(0.975, df) == pytest.approx(t, abs=1e-4)
+    assert student_t_quantile(0.975, 2000) == pytest.approx(1.961151, abs=1e-5)  # near the normal 1.959964
+    assert student_t_quantile(0.025, 5) == pytest.approx(-student_t_quantile(0.975, 5))
+    for bad in [(0.5, 0), (0.0, 3), (1.0, 3)]:
+        with pytest.raises(ValueError):
+            student_t_quantile(*bad)
+
+
+def test_student_t_matches_scipy():
+    stats = pytest.importorskip("scipy.stats")
+    for df in (1, 2, 3, 6, 11):
+        for t in (-7.5, -1.1, 0.3, 2.9):
+            assert student_t_cdf(t, df) == pytest.approx(float(stats.t.cdf(t, df)), abs=1e-12)
+
+
+def test_seed_mean_difference_uses_seeds_as_the_unit():
+    r = seed_mean_difference([0.1, 0.3, 0.2])
+    assert r["mean_diff"] == pytest.approx(0.2) and r["above"] == 3 and r["below"] == 0
+    half = 4.302653 * 0.1 / math.sqrt(3)  # t(0.975, 2) * sd / sqrt(n)
+    assert r["ci95"] == pytest.approx([0.2 - half, 0.2 + half], abs=1e-6)
+    assert r["sign_flip_p"] == pytest.approx(0.25) and r["p_floor"] == pytest.approx(0.25)
+    # Seeds that disagree: the interval spans 0 and the sign-flip test sees it.
+    r = seed_mean_difference([-0.03, 0.25, 0.0])
+    assert r["ci95"][0] < 0 < r["ci95"][1] and (r["above"], r["below"]) == (1, 1)
+    assert r["sign_flip_p"] == pytest.approx(1.0)  # every sign pattern's |mean| is 0.22/3 or 0.28/3
+    assert seed_mean_difference([0.1] * 5)["p_floor"] == pytest.approx(2 / 32)
+    for bad in ([0.1], [0.1, float("nan")]):
+        with pytest.raises(ValueError):
+            seed_mean_difference(bad)

@@ -154,3 +154,66 @@ def steps_to_threshold(steps: Sequence[int], values: Sequence[float], threshold:
         if v >= threshold:
             return int(s)
     return None
+
+
+def student_t_cdf(t: float, df: int) -> float:
+    """P(T <= t) for Student's t with `df` (an integer >= 1) degrees of freedom, from the exact finite sums
+    for integer df (Abramowitz and Stegun 26.7.3 and 26.7.4)."""
+    if df < 1:
+        raise ValueError(f"Student's t needs df >= 1, got {df}")
+    theta = math.atan(abs(t) / math.sqrt(df))
+    s, c2 = math.sin(theta), math.cos(theta) ** 2
+    if df % 2:  # odd df: (2 / pi) * (theta + sin * cos * (1 + 2/3 cos^2 + 2*4/(3*5) cos^4 + ...))
+        term, total = 1.0, 1.0 if df > 1 else 0.0
+        for k in range(1, (df - 1) // 2):
+            term *= 2 * k / (2 * k + 1) * c2
+            total += term
+        inside = 2 / math.pi * (theta + s * math.cos(theta) * total)
+    else:  # even df: sin * (1 + 1/2 cos^2 + 1*3/(2*4) cos^4 + ...)
+        term, total = 1.0, 1.0
+        for k in range(1, df // 2):
+            term *= (2 * k - 1) / (2 * k) * c2
+            total += term
+        inside = s * total
+    return 0.5 + math.copysign(0.5 * inside, t)
+
+
+def student_t_quantile(p: float, df: int) -> float:
+    """The t with `student_t_cdf(t, df) == p`, 0 < p < 1 (bisection to 1e-12)."""
+    if not 0 < p < 1:
+        raise ValueError(f"a quantile needs 0 < p < 1, got {p}")
+    lo, hi = -1.0, 1.0
+    while student_t_cdf(lo, df) > p:
+        lo *= 2
+    while student_t_cdf(hi, df) < p:
+        hi *= 2
+    while hi - lo > 1e-12 * max(1.0, abs(hi)):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if student_t_cdf(mid, df) < p else (lo, mid)
+    return (lo + hi) / 2
+
+
+def seed_mean_difference(diffs: Sequence[float]) -> dict[str, Any]:
+    """Inference with the training seed as the unit: `diffs` holds one paired success-rate difference (arm
+    minus reference) per seed. Returns their mean, a Student-t 95% interval (n - 1 df), how many seeds are
+    above and below zero, and the exact two-sided sign-flip p-value over all 2^n sign patterns, whose floor
+    (`p_floor`, 2 / 2^n when no difference is 0) says how small a p-value this many seeds can give."""
+    d = np.asarray(diffs, dtype=np.float64)
+    if d.ndim != 1 or len(d) < 2:
+        raise ValueError(f"a seed-level comparison needs at least two seeds, got {len(d)}")
+    if not np.isfinite(d).all():
+        raise ValueError("per-seed differences must be finite")
+    n, mean = len(d), float(d.mean())
+    half = student_t_quantile(0.975, n - 1) * float(d.std(ddof=1)) / math.sqrt(n)
+    signs = np.array(np.meshgrid(*[[-1.0, 1.0]] * n)).reshape(n, -1).T
+    null = np.abs((signs * d).mean(axis=1))
+    return {
+        "n_seeds": n,
+        "diffs": [float(x) for x in d],
+        "mean_diff": mean,
+        "ci95": [mean - half, mean + half],
+        "above": int((d > 0).sum()),
+        "below": int((d < 0).sum()),
+        "sign_flip_p": float((null >= abs(mean) - 1e-12).mean()),
+        "p_floor": float((null >= null.max() - 1e-12).mean()),
+    }

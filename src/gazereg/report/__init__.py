@@ -22,6 +22,7 @@ from gazereg.report.tables import (
     paired_tests,
     per_seed_table,
     run_of,
+    seed_level_tests,
     success_table,
     verdict,
 )
@@ -48,6 +49,7 @@ __all__ = [
     "plot_success",
     "results_block",
     "run_of",
+    "seed_level_tests",
     "success_table",
     "verdict",
     "write_report",

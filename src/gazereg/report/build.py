@@ -27,6 +27,7 @@ from gazereg.report.tables import (
     paired_tests,
     per_seed_table,
     run_of,
+    seed_level_tests,
     success_table,
     verdict,
 )
@@ -99,12 +100,14 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
     controls = {c: gaze_and_control(episodes, spec.arms, c) for c in GAZE_CONTROLS}
     controls = {c: records for c, records in controls.items() if records}
     paired = paired_tests(episodes)
+    seed_level = seed_level_tests(episodes)
     distance = paired_distance_tests(episodes)
-    verdicts = verdict(success, paired=paired)
+    verdicts = verdict(success, paired=paired, seed_level=seed_level)
     for control, records in controls.items():
         paired.update(paired_tests(records, control))
+        seed_level.update(seed_level_tests(records, control))
         distance.update(paired_distance_tests(records, reference=control))
-        verdicts += verdict(success_table(records), control, paired)
+        verdicts += verdict(success_table(records), control, paired, seed_level=seed_level)
     conv = convergence(checkpoint_tally(_convergence_points(spec, outputs)), spec.threshold)
     figs = out / "figures"
     figs.mkdir(parents=True, exist_ok=True)
@@ -115,6 +118,7 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
         "success": success,
         "paired": paired,
         "per_seed": per_seed_table(episodes) if len(spec.train_seeds) > 1 else None,
+        "seed_level": seed_level or None,
         "distance": {"table": distance_table(episodes), "paired": distance},
         "verdict": verdicts,
         "convergence": conv,

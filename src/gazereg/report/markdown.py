@@ -120,6 +120,29 @@ def paired_lines(report: dict[str, Any]) -> list[str]:
     return lines
 
 
+def seed_level_lines(report: dict[str, Any]) -> list[str]:
+    """The paired comparisons again with the training seed as the unit (`tables.seed_level_tests`)."""
+    if not report.get("seed_level"):
+        return []
+    lines = [
+        "",
+        "## Seed level (the training seed is the unit: per-seed paired differences, Student-t 95% interval)",
+        "",
+        "| comparison (A vs B) | condition | A - B per seed | mean [95% CI] | seeds above / below 0 "
+        "| sign-flip p | smallest possible p |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for k, v in report["seed_level"].items():
+        a, b, condition = split_paired_name(k)
+        per_seed = ", ".join(f"{d:+.2f}" for d in v["diffs"])
+        lo, hi = v["ci95"]
+        lines.append(
+            f"| {a} vs {b} | {condition} | {per_seed} | {v['mean_diff']:+.2f} [{lo:+.2f}, {hi:+.2f}] | "
+            f"{v['above']} / {v['below']} | {v['sign_flip_p']:.2f} | {v['p_floor']:.2f} |"
+        )
+    return lines
+
+
 def val_loss_lines(report: dict[str, Any]) -> list[str]:
     """Each arm's final action loss on its run's validation episodes (demonstrations held out of training, on
     training setups; a run's seed fixes the split, so arms with the same seed share it)."""
@@ -294,6 +317,7 @@ def markdown(report: dict[str, Any]) -> str:
         "",
         *drop_lines(report),
         *paired_lines(report),
+        *seed_level_lines(report),
         *distance_lines(report, conditions(report)),
         *val_loss_lines(report),
         "",
@@ -344,6 +368,7 @@ def results_block(report: dict[str, Any], figure: str) -> str:
             *per_task_lines(report),
             *per_seed_lines(report),
             *paired_lines(report),
+            *seed_level_lines(report),
             *distance_lines(report, conditions(report)),
             *val_loss_lines(report),
             "",

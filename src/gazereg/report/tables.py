@@ -22,6 +22,7 @@ from gazereg.evaluation.stats import (
     mcnemar_exact,
     paired_mean_difference,
     paired_rate_difference,
+    seed_mean_difference,
     steps_to_threshold,
     wilson,
 )
@@ -143,6 +144,24 @@ def paired_tests(records: list[dict[str, Any]], reference: str = "baseline") -> 
     return out
 
 
+def seed_level_tests(records: list[dict[str, Any]], reference: str = "baseline") -> dict[str, dict[str, Any]]:
+    """Each arm against `reference` per condition with the training seed as the unit: the paired success-rate
+    difference within each seed (episodes paired by task and setup seed), then `stats.seed_mean_difference`
+    over the seeds. Comparisons that share fewer than two seeds are left out. Unlike `paired_tests`, which
+    pools every episode, this lets seeds disagree: the spread between seeds widens the interval."""
+    out = {}
+    pairs = paired_by_setup(records, lambda r: (run_of(r).seed, bool(r["success"])), reference)
+    for name, _, x, y in pairs:
+        by_seed: dict[int, list[int]] = defaultdict(list)
+        for (seed, a), (_, b) in zip(x, y):
+            by_seed[seed].append(int(a) - int(b))
+        if len(by_seed) >= 2:
+            seeds = sorted(by_seed)
+            diffs = [sum(by_seed[s]) / len(by_seed[s]) for s in seeds]
+            out[name] = {"seeds": seeds, **seed_mean_difference(diffs)}
+    return out
+
+
 def distance_table(records: list[dict[str, Any]], key: str = "min_distance") -> dict[str, dict[str, Any]]:
     """{arm: {condition: {mean, ci95, n}}} of a per-episode distance (metres) pooled over training seeds and
     tasks (normal-approximation interval from the sample SD, as `stats.paired_mean_difference`); empty when
@@ -208,14 +227,29 @@ def overlap(a: list[float], b: list[float]) -> bool:
     return a[0] <= b[1] and b[0] <= a[1]
 
 
+def seed_clause(test: dict[str, Any]) -> str:
+    """One sentence on a `seed_level_tests` result: the mean of the per-seed differences, its t interval, how
+    many seeds point each way, and whether the seeds agree with the pooled test."""
+    lo, hi = test["ci95"]
+    n = test["n_seeds"]
+    agree = "excludes 0" if lo > 0 or hi < 0 else "includes 0: the seeds do not settle it"
+    return (
+        f" Seed level ({n} seeds): mean {test['mean_diff']:+.2f}, t 95% CI [{lo:+.2f}, {hi:+.2f}], "
+        f"{test['above']} of {n} above 0 and {test['below']} below, sign-flip p = {test['sign_flip_p']:.2f} "
+        f"(the smallest {n} seeds can give: {test['p_floor']:.2f}); the interval {agree}."
+    )
+
+
 def verdict(
     success: dict[str, Any],
     reference: str = "baseline",
     paired: dict[str, dict[str, Any]] | None = None,
     alpha: float = 0.05,
+    seed_level: dict[str, dict[str, Any]] | None = None,
 ) -> list[str]:
     """Plain sentences on what the data allow one to conclude: with `paired_tests`' results, the paired exact
-    test on the shared setups decides (at `alpha`); without, only non-overlapping Wilson intervals do."""
+    test on the shared setups decides (at `alpha`); without, only non-overlapping Wilson intervals do. With
+    `seed_level_tests`' results (several training seeds), each sentence also says whether the seeds agree."""
     if reference not in success:
         return ["No baseline arm: no comparison."]
     out = []
@@ -230,6 +264,8 @@ def verdict(
             intervals = "the 95% intervals do not overlap" if apart else "the 95% intervals overlap"
             better = "better" if diff > 0 else "worse"
             test = (paired or {}).get(paired_name(arm, reference, cond))
+            seeds = (seed_level or {}).get(paired_name(arm, reference, cond))
+            tail = seed_clause(seeds) if seeds else ""
             if test is not None:
                 p = test["mcnemar_p"]
                 if "rate_ci95" in test:
@@ -237,11 +273,11 @@ def verdict(
                     head += f", paired difference 95% CI [{lo:+.2f}, {hi:+.2f}]"
                 if p < alpha:
                     out.append(
-                        f"{head}; paired McNemar p = {p:.3g} < {alpha}: {arm} is {better} ({intervals})."
+                        f"{head}; paired McNemar p = {p:.3g} < {alpha}: {arm} is {better} ({intervals}).{tail}"
                     )
                 else:
                     out.append(
-                        f"{head}; paired McNemar p = {p:.3g}: no difference shown at this budget ({intervals})."
+                        f"{head}; paired McNemar p = {p:.3g}: no difference shown at this budget ({intervals}).{tail}"
                     )
             elif apart:
                 out.append(f"{head}; {intervals}: {arm} is {better}.")
