@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from _cost import efficiency, matmul_peaks, model_flops, profile_categories
 from _timing import machine_info
 
 from gazereg.attention.probe import AttentionProbe
@@ -52,14 +53,6 @@ PATHS = {
     "math_fp32": {"attention": "math", "fused_adamw": True, "autocast_bf16": False},
 }
 STEP_MODES = [(p, t) for p in PATHS for t in TERMS if p == "default" or t != "naive_all_layers"]
-OPS = {  # profiler op (aten::<op>) -> category; also attention: *scaled_dot_product*; optimizer: see op_category
-    "linear_matmul": ("mm", "addmm"),
-    "attention": ("bmm", "_softmax", "softmax", "_softmax_backward_data"),
-    "conv_stem": ("conv2d", "convolution", "_convolution", "convolution_backward", "mkldnn_convolution"),
-    "casts_copies": ("copy_", "_to_copy", "to"),
-}
-OP_CATEGORY = {f"aten::{op}": cat for cat, ops in OPS.items() for op in ops}
-CATEGORIES = (*OPS, "optimizer", "other")
 
 
 def make_store(root: Path, episodes: int = 20, length: int = 50, size: int = 96) -> EpisodeStore:
@@ -169,97 +162,10 @@ def time_steps(batches: list[dict], rounds: int, warmup: int) -> tuple[dict, dic
     return step_ms, trainers
 
 
-def model_flops(policy: VLAPolicy, batch: dict) -> dict[str, float]:
-    """GFLOP of one training forward's matmuls (hooks on every Linear / Conv2d; attention's two batched
-    matmuls from the config) and of a step (forward + backward = 3x)."""
-    flops = {"linear": 0, "conv": 0}
-
-    def count(m: torch.nn.Module, _inp: object, out: torch.Tensor) -> None:
-        if isinstance(m, torch.nn.Linear):
-            flops["linear"] += 2 * m.in_features * out.numel()
-        else:
-            kh, kw = m.kernel_size
-            flops["conv"] += 2 * (m.in_channels // m.groups) * kh * kw * out.numel()
-
-    mods = [m for m in policy.modules() if isinstance(m, torch.nn.Linear | torch.nn.Conv2d)]
-    hooks = [m.register_forward_hook(count) for m in mods]
-    try:
-        with torch.no_grad():
-            policy(batch, generator=torch.Generator().manual_seed(0), shift=4)
-    finally:
-        for h in hooks:
-            h.remove()
-    c, B, T = policy.config, batch["state"].shape[0], policy.n_tokens
-    flops["attention"] = c.depth * 2 * (2 * B * c.heads * T * T * (c.dim // c.heads))
-    out = {f"forward_gflop_{k}": v / 1e9 for k, v in flops.items()}
-    out["forward_gflop"] = sum(flops.values()) / 1e9
-    out["model_gflop_per_step"] = 3 * out["forward_gflop"]
-    return out
-
-
-def matmul_peaks(sizes: tuple[int, ...], min_s: float) -> dict[str, dict]:
-    """GFLOP/s of square torch.mm on the current thread count per dtype (fastest call of each size)."""
-    out = {}
-    for dtype in (torch.float32, torch.bfloat16):
-        by_size = {}
-        for n in sizes:
-            a, b = torch.randn(n, n).to(dtype), torch.randn(n, n).to(dtype)
-            torch.mm(a, b)
-            best, t_end, calls = float("inf"), time.perf_counter() + min_s, 0
-            while calls < 3 or time.perf_counter() < t_end:
-                t0 = time.perf_counter()
-                torch.mm(a, b)
-                best, calls = min(best, time.perf_counter() - t0), calls + 1
-            by_size[str(n)] = round(2 * n**3 / best / 1e9, 1)
-        out[str(dtype).removeprefix("torch.")] = {"best": max(by_size.values()), "by_size": by_size}
-    return out
-
-
-def efficiency(step_ms: dict, gflop: float, peaks: dict) -> tuple[dict, dict]:
-    """Achieved GFLOP/s per (path, term); the baseline's fraction of the peaks (own dtype, fp32, bf16)."""
-    achieved = {p: {t: round(gflop * 1000 / ms, 1) for t, ms in v.items()} for p, v in step_ms.items()}
-    fp32, bf16 = peaks["float32"]["best"], peaks["bfloat16"]["best"]
-    fraction = {}
-    for p, v in achieved.items():
-        own = PATHS[p]["autocast_bf16"]
-        fraction[p] = {
-            "own_dtype": "bfloat16" if own else "float32",
-            "of_own_dtype_peak": round(v["baseline"] / (bf16 if own else fp32), 3),
-            "of_fp32_peak": round(v["baseline"] / fp32, 3),
-            "of_bf16_peak": round(v["baseline"] / bf16, 3),
-        }
-    return achieved, fraction
-
-
-def op_category(ev: object) -> str:
-    node = ev
-    while node is not None:
-        if node.name.startswith("Optimizer.step") or node.name == "aten::_fused_adamw_":
-            return "optimizer"
-        node = node.cpu_parent
-    return "attention" if "scaled_dot_product" in ev.name else OP_CATEGORY.get(ev.name, "other")
-
-
 def profile_steps(tr: Trainer, batches: list[dict], term: str, n: int) -> dict:
-    """Self CPU ms per step by category over n profiled steps (profiler overhead included) and the largest
-    ops counted as "other"."""
-    from torch.profiler import ProfilerActivity, profile
-
+    """`_cost.profile_categories` of n training steps of `tr` with `term`, after one unprofiled step."""
     train_step(tr, batches[0], term, 0)
-    with profile(activities=[ProfilerActivity.CPU]) as prof:
-        for i in range(n):
-            train_step(tr, batches[i % len(batches)], term, i)
-    totals, other = dict.fromkeys(CATEGORIES, 0.0), {}
-    for ev in prof.events():
-        cat = op_category(ev)
-        totals[cat] += ev.self_cpu_time_total
-        if cat == "other":
-            other[ev.name] = other.get(ev.name, 0.0) + ev.self_cpu_time_total
-    out: dict = {k: round(v / n / 1000, 2) for k, v in totals.items()}
-    out["total"] = round(sum(totals.values()) / n / 1000, 2)
-    top = sorted(other.items(), key=lambda kv: -kv[1])[:6]
-    out["top_other_ops"] = {k: round(v / n / 1000, 2) for k, v in top}
-    return out
+    return profile_categories(lambda i: train_step(tr, batches[i % len(batches)], term, i), n)
 
 
 def saved_bytes(policy: VLAPolicy, batch: dict, term: str, bf16: bool) -> int:
@@ -381,8 +287,9 @@ def report_efficiency(out: dict, step_ms: dict, policy: VLAPolicy, batch: dict, 
     out["flops"] = {k: round(v, 4) for k, v in flops.items()}
     out["flops"]["note"] = "matmuls only (Linear, Conv2d, attention's bmm); step = 3x forward"
     out["matmul_peak_gflops"] = peaks
+    bf16_paths = {p for p, v in PATHS.items() if v["autocast_bf16"]}
     out["achieved_gflops"], out["fraction_of_peak"] = efficiency(
-        step_ms, flops["model_gflop_per_step"], peaks
+        step_ms, flops["model_gflop_per_step"], peaks, bf16_paths
     )
 
 
