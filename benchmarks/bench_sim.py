@@ -54,7 +54,7 @@ def env_steps_per_s(task: str, steps: int, gl_backend: str, **env_kwargs) -> dic
     }
 
 
-def main() -> int:
+def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--steps", type=int, default=600)
     ap.add_argument("--task", default="pick-place-v3")
@@ -64,10 +64,78 @@ def main() -> int:
     ap.add_argument("--tasks", default="reach-v3,button-press-topdown-v3,pick-place-v3")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--image-size", type=int, default=96, help="collection image size")
-    args = ap.parse_args()
+    return ap.parse_args()
 
+
+def env_rates_one_core(task: str, steps: int, backend: str) -> dict[str, float]:
+    """Environment steps/s on one core: physics only, rendering at 128 and 96 px, full meshes, two cameras."""
+    all_cores = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {min(all_cores)})  # one core, before any GL context spawns its threads
+    try:
+        return {
+            "physics_only": env_steps_per_s(task, steps * 3, backend, cameras=()),
+            "render_128": env_steps_per_s(task, steps, backend, cameras=("corner2",), image_size=128),
+            "render_96": env_steps_per_s(task, steps, backend, cameras=("corner2",), image_size=96),
+            "render_128_full_meshes": env_steps_per_s(
+                task, steps // 2, backend, cameras=("corner2",), image_size=128, mesh_cell=None
+            ),
+            "render_128_two_cameras": env_steps_per_s(
+                task, steps // 2, backend, cameras=("corner2", "topview"), image_size=128
+            ),
+        }
+    finally:
+        os.sched_setaffinity(0, all_cores)
+
+
+def collection_rates(
+    tasks: tuple[str, ...], episodes: int, image_size: int, workers: int, backend: str
+) -> dict:
+    """`gazereg collect`'s throughput: wall-clock frames/s, and per-worker rates from the rollouts' own times."""
     from gazereg.envs.collect import collect
     from gazereg.envs.collect_config import CollectConfig
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = CollectConfig(
+            out=Path(tmp) / "demos",
+            tasks=tasks,
+            episodes=episodes,
+            image_size=image_size,
+            cameras=("corner2",),
+            workers=workers,
+            progress=False,
+            gl_backend=backend,
+        )
+        t0 = time.perf_counter()
+        report = collect(cfg)
+        wall = time.perf_counter() - t0
+        attempts = [
+            json.loads(x)["record"]
+            for x in (Path(tmp) / "demos" / "collect" / "attempts.jsonl").read_text().splitlines()
+        ]
+    rollout_s = sum(a["seconds"] for a in attempts)
+    rollout_cpu = sum(a.get("cpu_seconds", 0.0) for a in attempts)
+    return {
+        "tasks": list(tasks),
+        "image_size": image_size,
+        "workers": workers,
+        "episodes": report.new_episodes,
+        "frames": report.new_frames,
+        "wall_s": wall,
+        "frames_per_s": report.new_frames / wall,
+        "episodes_per_s": report.new_episodes / wall,
+        "complete": report.complete,
+        "rollout_frames_per_s_per_worker": report.new_frames / rollout_s,
+        "cpu_ms_per_frame": 1000 * rollout_cpu / report.new_frames,
+        "frames_per_s_if_cores_idle": workers * report.new_frames / rollout_cpu,
+        "note": "wall time includes starting the worker processes and building each task's environment; "
+        "rollout_frames_per_s_per_worker counts only the time inside rollouts (steady state of one worker); "
+        "frames_per_s_if_cores_idle = workers / CPU time per frame, what the rollouts would reach with every core "
+        "to themselves (the machine is shared: see load_avg)",
+    }
+
+
+def main() -> int:
+    args = parse_args()
     from gazereg.envs.render import select_gl_backend
     from gazereg.runtime.pool import available_cores
 
@@ -82,61 +150,9 @@ def main() -> int:
         "gl_backend": backend,
         "task": args.task,
     }
-
-    all_cores = os.sched_getaffinity(0)
-    os.sched_setaffinity(0, {min(all_cores)})  # one core, before any GL context spawns its threads
-    env = {}
-    env["physics_only"] = env_steps_per_s(args.task, args.steps * 3, backend, cameras=())
-    env["render_128"] = env_steps_per_s(args.task, args.steps, backend, cameras=("corner2",), image_size=128)
-    env["render_96"] = env_steps_per_s(args.task, args.steps, backend, cameras=("corner2",), image_size=96)
-    env["render_128_full_meshes"] = env_steps_per_s(
-        args.task, args.steps // 2, backend, cameras=("corner2",), image_size=128, mesh_cell=None
-    )
-    env["render_128_two_cameras"] = env_steps_per_s(
-        args.task, args.steps // 2, backend, cameras=("corner2", "topview"), image_size=128
-    )
-    result["env_one_core"] = env
-    os.sched_setaffinity(0, all_cores)
-
+    result["env_one_core"] = env_rates_one_core(args.task, args.steps, backend)
     tasks = tuple(t for t in args.tasks.split(",") if t)
-    with tempfile.TemporaryDirectory() as tmp:
-        cfg = CollectConfig(
-            out=Path(tmp) / "demos",
-            tasks=tasks,
-            episodes=args.episodes,
-            image_size=args.image_size,
-            cameras=("corner2",),
-            workers=args.workers,
-            progress=False,
-            gl_backend=backend,
-        )
-        t0 = time.perf_counter()
-        report = collect(cfg)
-        wall = time.perf_counter() - t0
-        attempts = [
-            json.loads(x)["record"]
-            for x in (Path(tmp) / "demos" / "collect" / "attempts.jsonl").read_text().splitlines()
-        ]
-        rollout_s = sum(a["seconds"] for a in attempts)
-        rollout_cpu = sum(a.get("cpu_seconds", 0.0) for a in attempts)
-    result["collect"] = {
-        "tasks": list(tasks),
-        "image_size": args.image_size,
-        "workers": args.workers,
-        "episodes": report.new_episodes,
-        "frames": report.new_frames,
-        "wall_s": wall,
-        "frames_per_s": report.new_frames / wall,
-        "episodes_per_s": report.new_episodes / wall,
-        "complete": report.complete,
-        "rollout_frames_per_s_per_worker": report.new_frames / rollout_s,
-        "cpu_ms_per_frame": 1000 * rollout_cpu / report.new_frames,
-        "frames_per_s_if_cores_idle": args.workers * report.new_frames / rollout_cpu,
-        "note": "wall time includes starting the worker processes and building each task's environment; "
-        "rollout_frames_per_s_per_worker counts only the time inside rollouts (steady state of one worker); "
-        "frames_per_s_if_cores_idle = workers / CPU time per frame, what the rollouts would reach with every core "
-        "to themselves (the machine is shared: see load_avg)",
-    }
+    result["collect"] = collection_rates(tasks, args.episodes, args.image_size, args.workers, backend)
     result["machine"]["load_avg_after"] = os.getloadavg()
     print(json.dumps(result, indent=2))
     return 0
