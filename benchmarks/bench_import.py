@@ -57,50 +57,63 @@ def import_into_fresh_store(fn, cfg_factory):
     return run
 
 
-def write_lerobot_h264(root: Path, demos: int, frames: int, size: int, fps: int = 10) -> int:
+def encode_h264_episodes(
+    video: Path, demos: int, frames: int, size: int, fps: int
+) -> tuple[dict[str, list], list[list[float]]]:
+    """Encode `demos` x `frames` frames (a random image rolled one column per frame) into one H.264 MP4;
+    returns the data table's index columns and a 4-d state per frame."""
     import av
+
+    c = av.open(str(video), "w")
+    s = c.add_stream("libx264", rate=fps)
+    s.width = s.height = size
+    s.pix_fmt = "yuv420p"
+    s.options = {"g": "10", "preset": "veryfast"}
+    base = np.random.default_rng(0).integers(0, 255, (size, size, 3), dtype=np.uint8)
+    cols: dict[str, list] = {
+        k: [] for k in ("episode_index", "frame_index", "index", "task_index", "timestamp")
+    }
+    state = []
+    for g in range(demos * frames):
+        e, i = divmod(g, frames)
+        fr = av.VideoFrame.from_ndarray(np.roll(base, shift=i, axis=1), format="rgb24")
+        fr.pts = g
+        for pkt in s.encode(fr):
+            c.mux(pkt)
+        for k, v in (
+            ("episode_index", e),
+            ("frame_index", i),
+            ("index", g),
+            ("task_index", 0),
+            ("timestamp", i / fps),
+        ):
+            cols[k].append(v)
+        state.append([float(e), float(i), 0.0, 1.0])
+    for pkt in s.encode():
+        c.mux(pkt)
+    c.close()
+    return cols, state
+
+
+def write_lerobot_h264(root: Path, demos: int, frames: int, size: int, fps: int = 10) -> int:
+    """A LeRobot v3 data set at `root`: one H.264 camera (all episodes in one MP4), state, action and a
+    `gaze.point` column; returns its number of frames."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     key = "observation.images.top"
     for sub in ("meta/episodes/chunk-000", "data/chunk-000", f"videos/{key}/chunk-000"):
         (root / sub).mkdir(parents=True)
-    c = av.open(str(root / f"videos/{key}/chunk-000/file-000.mp4"), "w")
-    s = c.add_stream("libx264", rate=fps)
-    s.width = s.height = size
-    s.pix_fmt = "yuv420p"
-    s.options = {"g": "10", "preset": "veryfast"}
-    rng = np.random.default_rng(0)
-    base = rng.integers(0, 255, (size, size, 3), dtype=np.uint8)
-    ep_rows, cols = [], {k: [] for k in ("episode_index", "frame_index", "index", "task_index", "timestamp")}
-    state = []
-    g = 0
-    for e in range(demos):
-        for i in range(frames):
-            img = np.roll(base, shift=i, axis=1)
-            fr = av.VideoFrame.from_ndarray(img, format="rgb24")
-            fr.pts = g
-            for p in s.encode(fr):
-                c.mux(p)
-            for k, v in (
-                ("episode_index", e),
-                ("frame_index", i),
-                ("index", g),
-                ("task_index", 0),
-                ("timestamp", i / fps),
-            ):
-                cols[k].append(v)
-            state.append([float(e), float(i), 0.0, 1.0])
-            g += 1
-        ep_rows.append({
-            "episode_index": e, "tasks": ["move"], "length": frames, "data/chunk_index": 0, "data/file_index": 0,
-            "dataset_from_index": g - frames, "dataset_to_index": g,
-            f"videos/{key}/chunk_index": 0, f"videos/{key}/file_index": 0,
-            f"videos/{key}/from_timestamp": (g - frames) / fps, f"videos/{key}/to_timestamp": g / fps,
-        })  # fmt: skip
-    for p in s.encode():
-        c.mux(p)
-    c.close()
+    cols, state = encode_h264_episodes(
+        root / f"videos/{key}/chunk-000/file-000.mp4", demos, frames, size, fps
+    )
+    g = demos * frames
+    ep_rows = [{
+        "episode_index": e, "tasks": ["move"], "length": frames, "data/chunk_index": 0, "data/file_index": 0,
+        "dataset_from_index": e * frames, "dataset_to_index": (e + 1) * frames,
+        f"videos/{key}/chunk_index": 0, f"videos/{key}/file_index": 0,
+        f"videos/{key}/from_timestamp": e * frames / fps, f"videos/{key}/to_timestamp": (e + 1) * frames / fps,
+    } for e in range(demos)]  # fmt: skip
     vec = pa.list_(pa.float32(), 4)
     table = {k: pa.array(v, pa.float32() if k == "timestamp" else pa.int64()) for k, v in cols.items()}
     table.update(
@@ -147,6 +160,29 @@ def write_libero_hdf5(path: Path, demos: int, frames: int, size: int) -> int:
     return demos * frames
 
 
+def fixture_rates(fx: Path, repeat: int) -> dict:
+    """Import and decode-only rates of the LeRobot v3 fixture at `fx` (skipped when absent)."""
+    if not (fx / "meta" / "info.json").exists():
+        return {"skipped": f"no fixture at {fx}"}
+    n = LeRobotV3Dataset(fx).info.get("total_frames", 66)
+    r = median_rate(
+        import_into_fresh_store(
+            import_lerobot, lambda o: LeRobotImportConfig(root=fx, out=o, progress=False)
+        ),
+        n,
+        repeat,
+    )
+
+    def decode_only():
+        ds = LeRobotV3Dataset(fx)
+        for e in ds.episodes:
+            ds.read_episode(e)
+        ds.close()
+
+    r["decode_only_frames_per_s"] = median_rate(decode_only, n, repeat)["frames_per_s"]
+    return r
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=7)
@@ -167,27 +203,7 @@ def main() -> int:
     }
     work = Path(tempfile.mkdtemp(prefix="bench_import_src_"))
     try:
-        if (args.fixture / "meta" / "info.json").exists():
-            fx = args.fixture
-            n = LeRobotV3Dataset(fx).info.get("total_frames", 66)
-            r = median_rate(
-                import_into_fresh_store(
-                    import_lerobot, lambda o: LeRobotImportConfig(root=fx, out=o, progress=False)
-                ),
-                n,
-                args.repeat,
-            )
-
-            def decode_only():
-                ds = LeRobotV3Dataset(fx)
-                for e in ds.episodes:
-                    ds.read_episode(e)
-                ds.close()
-
-            r["decode_only_frames_per_s"] = median_rate(decode_only, n, args.repeat)["frames_per_s"]
-            out["lerobot_fixture"] = r
-        else:
-            out["lerobot_fixture"] = {"skipped": f"no fixture at {args.fixture}"}
+        out["lerobot_fixture"] = fixture_rates(args.fixture, args.repeat)
 
         root = work / "lerobot_h264"
         n = write_lerobot_h264(root, args.demos, args.frames, args.size)
