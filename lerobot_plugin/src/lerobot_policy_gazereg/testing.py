@@ -15,24 +15,12 @@ from collections.abc import Callable
 from pathlib import Path
 
 
-def make_tiny_smolvlm(
-    path: str | Path,
-    image_size: int = 64,
-    patch_size: int = 8,
-    scale_factor: int = 2,
-    text_layers: int = 4,
-    hidden: int = 64,
-) -> Path:
+def tiny_word_tokenizer():
+    """A word-level fast tokenizer over letters, digits, punctuation, a few task words and SmolVLM's special
+    image tokens (a `transformers.PreTrainedTokenizerFast`)."""
     from tokenizers import Tokenizer, models, pre_tokenizers
-    from transformers import (
-        PreTrainedTokenizerFast,
-        SmolVLMConfig,
-        SmolVLMImageProcessor,
-        SmolVLMProcessor,
-    )
+    from transformers import PreTrainedTokenizerFast
 
-    path = Path(path)
-    path.mkdir(parents=True, exist_ok=True)
     special = ["<pad>", "<unk>", "<|im_start|>", "<end_of_utterance>", "<fake_token_around_image>",
                "<global-img>", "<image>"]  # fmt: skip
     words = [*special, *string.ascii_lowercase, *string.digits, *".,!?;:'\"-\n"]
@@ -40,7 +28,7 @@ def make_tiny_smolvlm(
     vocab = {w: i for i, w in enumerate(dict.fromkeys(words))}
     tok = Tokenizer(models.WordLevel(vocab=vocab, unk_token="<unk>"))
     tok.pre_tokenizer = pre_tokenizers.Whitespace()
-    fast = PreTrainedTokenizerFast(
+    return PreTrainedTokenizerFast(
         tokenizer_object=tok,
         pad_token="<pad>",
         unk_token="<unk>",
@@ -52,6 +40,21 @@ def make_tiny_smolvlm(
             "image_token": "<image>",
         },
     )
+
+
+def make_tiny_smolvlm(
+    path: str | Path,
+    image_size: int = 64,
+    patch_size: int = 8,
+    scale_factor: int = 2,
+    text_layers: int = 4,
+    hidden: int = 64,
+) -> Path:
+    from transformers import SmolVLMConfig, SmolVLMImageProcessor, SmolVLMProcessor
+
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    fast = tiny_word_tokenizer()
     fast.save_pretrained(path)
     heads = 4
     cfg = SmolVLMConfig(
