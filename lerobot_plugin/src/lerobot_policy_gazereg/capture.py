@@ -107,6 +107,30 @@ class CaptureResults:
         return torch.arange(start, start + counts[camera], device=device)
 
 
+def _tracking_layers(state: _State, orig: Any, cross: bool) -> Any:
+    """`orig` (SmolVLA's forward_attn_layer or forward_cross_attn_layer) wrapped to note in `state` which layer
+    runs and which of its eager-attention calls is the action expert's (None: none to capture)."""
+
+    def run(model_layers, inputs_embeds, layer_idx, *args: Any, **kwargs: Any):
+        has_expert = len(inputs_embeds) > 1 and inputs_embeds[1] is not None
+        has_expert = has_expert and model_layers[1][layer_idx] is not None
+        state.layer, state.calls = layer_idx, 0
+        state.suffix_len = inputs_embeds[1].shape[1] if has_expert else 0
+        if not has_expert or layer_idx not in state.layers:
+            state.expert_call = None
+        elif cross:
+            past = kwargs.get("past_key_values", args[5] if len(args) > 5 else None)
+            state.expert_call = 1 if (len(inputs_embeds) == 2 and not past) else 0
+        else:
+            state.expert_call = 0
+        try:
+            return orig(model_layers, inputs_embeds, layer_idx, *args, **kwargs)
+        finally:
+            state.layer = state.expert_call = None
+
+    return run
+
+
 class SmolVLACapture(CaptureResults):
     """Capture of `VLAFlowMatching`'s expert-to-image attention on chosen VLM layer indices.
 
@@ -151,26 +175,6 @@ class SmolVLACapture(CaptureResults):
 
         embed_image = counting_tokens(orig_embed, state.image_tokens)
 
-        def layer_wrapper(orig: Any, cross: bool) -> Any:
-            def run(model_layers, inputs_embeds, layer_idx, *args: Any, **kwargs: Any):
-                has_expert = len(inputs_embeds) > 1 and inputs_embeds[1] is not None
-                has_expert = has_expert and model_layers[1][layer_idx] is not None
-                state.layer, state.calls = layer_idx, 0
-                state.suffix_len = inputs_embeds[1].shape[1] if has_expert else 0
-                if not has_expert or layer_idx not in state.layers:
-                    state.expert_call = None
-                elif cross:
-                    past = kwargs.get("past_key_values", args[5] if len(args) > 5 else None)
-                    state.expert_call = 1 if (len(inputs_embeds) == 2 and not past) else 0
-                else:
-                    state.expert_call = 0
-                try:
-                    return orig(model_layers, inputs_embeds, layer_idx, *args, **kwargs)
-                finally:
-                    state.layer = state.expert_call = None
-
-            return run
-
         def eager(attention_mask, batch_size, head_dim, query_states, key_states, value_states):
             out = orig_eager(attention_mask, batch_size, head_dim, query_states, key_states, value_states)
             call = state.calls
@@ -181,8 +185,8 @@ class SmolVLACapture(CaptureResults):
             return out
 
         vwe.embed_image = embed_image
-        vwe.forward_attn_layer = layer_wrapper(orig_attn_layer, cross=False)
-        vwe.forward_cross_attn_layer = layer_wrapper(orig_cross_layer, cross=True)
+        vwe.forward_attn_layer = _tracking_layers(state, orig_attn_layer, cross=False)
+        vwe.forward_cross_attn_layer = _tracking_layers(state, orig_cross_layer, cross=True)
         vwe.eager_attention_forward = eager
         try:
             yield self
