@@ -23,6 +23,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 DEFAULT_FIXTURE = Path(os.environ.get("GAZEREG_FIXTURES", "/work/shared/fixtures")) / "lerobot_v3_tiny"
 GAZE_CAMERA = "observation.images.front"
@@ -48,7 +49,7 @@ def build(kind: str, vlm: Path, dataset, seed: int):
     return policy, pre
 
 
-def main() -> int:
+def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=15, help="timed steps per mode (interleaved)")
     ap.add_argument("--warmup", type=int, default=3, help="untimed steps per mode first")
@@ -56,8 +57,35 @@ def main() -> int:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--fixture", type=Path, default=DEFAULT_FIXTURE)
-    a = ap.parse_args()
+    return ap.parse_args()
 
+
+def interleaved_steps(modes: dict, noise: Any, flow_t: Any, steps: int, warmup: int) -> tuple[dict, dict]:
+    """({mode: seconds per forward + backward}, {mode: the last step's info}) over `steps` rounds that
+    alternate the modes' order, after `warmup` untimed rounds; `modes` maps a name to (policy, batch)."""
+
+    def step(mode: str) -> tuple[float, dict]:
+        policy, batch = modes[mode]
+        policy.zero_grad(set_to_none=True)
+        t0 = time.perf_counter()
+        loss, info = policy.forward(dict(batch), noise=noise, time=flow_t)
+        loss.backward()
+        return time.perf_counter() - t0, info
+
+    for _ in range(warmup):
+        for mode in modes:
+            step(mode)
+    times: dict[str, list[float]] = {m: [] for m in modes}
+    infos: dict[str, dict] = {}
+    for i in range(steps):
+        for mode in ("plain", "gaze") if i % 2 == 0 else ("gaze", "plain"):
+            dt, infos[mode] = step(mode)
+            times[mode].append(dt)
+    return times, infos
+
+
+def main() -> int:
+    a = parse_args()
     try:
         import lerobot
     except ImportError:
@@ -81,7 +109,6 @@ def main() -> int:
         video_backend="pyav",
     )
     raw = torch.utils.data.default_collate([dataset[i] for i in range(a.batch)])
-
     with tempfile.TemporaryDirectory() as tmp:
         vlm = make_tiny_smolvlm(Path(tmp) / "tiny_smolvlm")
         plain, pre_plain = build("plain", vlm, dataset, a.seed)
@@ -91,31 +118,11 @@ def main() -> int:
         for p, q in zip(plain.state_dict().values(), gaze.state_dict().values(), strict=True)
     )
     modes = {"plain": (plain, pre_plain(dict(raw))), "gaze": (gaze, pre_gaze(dict(raw)))}
-
     g = torch.Generator().manual_seed(a.seed + 1)
     noise = torch.randn(a.batch, plain.config.chunk_size, plain.config.max_action_dim, generator=g)
-    flow_t = torch.full((a.batch,), 0.5)
+    times, infos = interleaved_steps(modes, noise, torch.full((a.batch,), 0.5), a.steps, a.warmup)
 
-    def step(mode: str) -> tuple[float, dict]:
-        policy, batch = modes[mode]
-        policy.zero_grad(set_to_none=True)
-        t0 = time.perf_counter()
-        loss, info = policy.forward(dict(batch), noise=noise, time=flow_t)
-        loss.backward()
-        return time.perf_counter() - t0, info
-
-    for _ in range(a.warmup):
-        for mode in modes:
-            step(mode)
-    times: dict[str, list[float]] = {m: [] for m in modes}
-    infos: dict[str, dict] = {}
-    for i in range(a.steps):
-        for mode in ("plain", "gaze") if i % 2 == 0 else ("gaze", "plain"):
-            dt, infos[mode] = step(mode)
-            times[mode].append(dt)
-
-    plain_s = statistics.median(times["plain"])
-    gaze_s = statistics.median(times["gaze"])
+    plain_s, gaze_s = statistics.median(times["plain"]), statistics.median(times["gaze"])
     out = {
         "step_s_plain": round(plain_s, 5),
         "step_s_gaze": round(gaze_s, 5),
