@@ -1,10 +1,13 @@
 """`gazereg experiment`: the whole pipeline, stage by stage, resumable (the README's main job).
 
-    gazereg experiment --preset quick            # make demo: a few Meta-World tasks, ~15 min on 2 CPU cores
+    gazereg experiment --preset quick            # make demo: 2 Meta-World tasks, baseline and gaze
     gazereg experiment --preset smoke            # CI: the same code, tiny sizes
-    gazereg experiment --preset paper            # powered: 3 arms x 3 training seeds, 50 episodes per task and condition
+    gazereg experiment --preset paper --train-seeds 0 --out runs/paper-s0   # powered: 5 arms, one seed a sitting
+    gazereg experiment --preset sweep            # 8 more Meta-World tasks drawn from the difficulty groups
     gazereg experiment --preset full             # every ablation arm, 5 tasks, 128 px: for a many-core GPU machine
-    bash scripts/libero_env.sh gazereg experiment --preset libero   # LIBERO-Spatial's 10 tasks, 4 arms, ~2.3 h
+    bash scripts/libero_env.sh gazereg experiment --preset libero   # LIBERO-Spatial's 10 tasks, 4 arms
+
+How long each takes on 2 cores: the README's preset table.
 
 Stages (each writes into `out/` and a marker `out/stages/<name>.json`; a rerun skips finished stages, so a
 killed run loses at most the stage it was in; training resumes from its last checkpoint and evaluation
@@ -18,6 +21,7 @@ from its episode log, episodes.jsonl):
   converge   intermediate checkpoints, clean, for success-versus-steps curves
   align      attention vs gaze on held-out frames; the attention figure
   report     report.json, report.md, figures
+
 Arms: baseline (no gaze term), gaze (the gaze source), perturbed (its patches shuffled), blobs (random
 blobs), other_episode (another episode's gaze), saliency, uniform, glc, location (the gaze prior predicted by
 a training-only head from the image features instead of imposed on attention: the control for the location
