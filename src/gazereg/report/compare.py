@@ -16,8 +16,8 @@ import json
 from pathlib import Path
 from typing import Any, NoReturn
 
+from gazereg.report.comparisons import rate_difference
 from gazereg.report.ids import RunId
-from gazereg.report.markdown import rate_difference
 from gazereg.report.tables import paired_distance_tests, paired_tests, run_of, success_table
 from gazereg.runtime.config import config_diff
 from gazereg.runtime.errors import UsageError

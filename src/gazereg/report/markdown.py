@@ -13,6 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from gazereg.report.comparisons import paired_lines, seed_level_lines
 from gazereg.report.ids import RunId
 from gazereg.report.sections import glc_lines, header_lines
 from gazereg.report.tables import split_paired_name
@@ -85,60 +86,6 @@ def per_seed_lines(report: dict[str, Any]) -> list[str]:
     for run, row in runs.items():
         lines.append(
             f"| {run} | " + " | ".join(f"{row[c][0]}/{row[c][1]}" if c in row else "-" for c in conds) + " |"
-        )
-    return lines
-
-
-def rate_difference(test: dict[str, Any]) -> str:
-    """A paired test's success-rate difference and its 95% interval, e.g. `+0.12 [+0.05, +0.19]`; `n/a` for
-    reports written before it was computed."""
-    if "rate_diff" not in test:
-        return "n/a"
-    lo, hi = test["rate_ci95"]
-    return f"{test['rate_diff']:+.2f} [{lo:+.2f}, {hi:+.2f}]"
-
-
-def paired_lines(report: dict[str, Any]) -> list[str]:
-    """Each arm against the baseline on the same setups: the paired success difference with its interval,
-    exact McNemar and Fisher p-values."""
-    if not report.get("paired"):
-        return []
-    lines = [
-        "",
-        "## Paired comparisons (same setups; exact McNemar on discordant episodes, Fisher on counts)",
-        "",
-        "| comparison (A vs B) | condition | pairs | only A solved | only B solved | success A - B [95% CI] "
-        "| McNemar p | Fisher p |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for k, v in report["paired"].items():
-        a, b, condition = split_paired_name(k)
-        lines.append(
-            f"| {a} vs {b} | {condition} | {v['pairs']} | {v[f'{a}_only']} | {v[f'{b}_only']} | "
-            f"{rate_difference(v)} | {v['mcnemar_p']:.3f} | {v['fisher_p']:.3f} |"
-        )
-    return lines
-
-
-def seed_level_lines(report: dict[str, Any]) -> list[str]:
-    """The paired comparisons again with the training seed as the unit (`tables.seed_level_tests`)."""
-    if not report.get("seed_level"):
-        return []
-    lines = [
-        "",
-        "## Seed level (the training seed is the unit: per-seed paired differences, Student-t 95% interval)",
-        "",
-        "| comparison (A vs B) | condition | A - B per seed | mean [95% CI] | seeds above / below 0 "
-        "| sign-flip p | smallest possible p |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for k, v in report["seed_level"].items():
-        a, b, condition = split_paired_name(k)
-        per_seed = ", ".join(f"{d:+.2f}" for d in v["diffs"])
-        lo, hi = v["ci95"]
-        lines.append(
-            f"| {a} vs {b} | {condition} | {per_seed} | {v['mean_diff']:+.2f} [{lo:+.2f}, {hi:+.2f}] | "
-            f"{v['above']} / {v['below']} | {v['sign_flip_p']:.2f} | {v['p_floor']:.2f} |"
         )
     return lines
 

@@ -1,0 +1,88 @@
+"""The paired comparisons of report.json as markdown tables: each arm against its reference on the same
+setups (`paired_lines`) and the same comparisons with the training seed as the unit (`seed_level_lines`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from gazereg.report.tables import split_paired_name
+
+
+def rate_difference(test: dict[str, Any]) -> str:
+    """A paired test's success-rate difference and its 95% interval, e.g. `+0.12 [+0.05, +0.19]`; `n/a` for
+    reports written before it was computed."""
+    if "rate_diff" not in test:
+        return "n/a"
+    lo, hi = test["rate_ci95"]
+    return f"{test['rate_diff']:+.2f} [{lo:+.2f}, {hi:+.2f}]"
+
+
+def comparison_lines(
+    comparisons: dict[str, dict[str, Any]], columns: list[str], cells: Callable[[str, str, dict], list[str]]
+) -> list[str]:
+    """A table with one row per comparison ("A vs B | condition" keys, `tables.paired_name`): its two leading
+    columns, then `columns` filled by `cells(A, B, the comparison's values)`."""
+    lines = [
+        "| comparison (A vs B) | condition | " + " | ".join(columns) + " |",
+        "|---|---|" + "---|" * len(columns),
+    ]
+    for k, v in comparisons.items():
+        a, b, condition = split_paired_name(k)
+        lines.append(f"| {a} vs {b} | {condition} | " + " | ".join(cells(a, b, v)) + " |")
+    return lines
+
+
+def paired_lines(report: dict[str, Any]) -> list[str]:
+    """Each arm against the baseline on the same setups: the paired success difference with its interval,
+    exact McNemar and Fisher p-values."""
+    if not report.get("paired"):
+        return []
+    columns = ["pairs", "only A solved", "only B solved", "success A - B [95% CI]", "McNemar p", "Fisher p"]
+    return [
+        "",
+        "## Paired comparisons (same setups; exact McNemar on discordant episodes, Fisher on counts)",
+        "",
+        *comparison_lines(
+            report["paired"],
+            columns,
+            lambda a, b, v: [
+                str(v["pairs"]),
+                str(v[f"{a}_only"]),
+                str(v[f"{b}_only"]),
+                rate_difference(v),
+                f"{v['mcnemar_p']:.3f}",
+                f"{v['fisher_p']:.3f}",
+            ],
+        ),
+    ]
+
+
+def seed_level_lines(report: dict[str, Any]) -> list[str]:
+    """The paired comparisons again with the training seed as the unit (`tables.seed_level_tests`)."""
+    if not report.get("seed_level"):
+        return []
+    columns = [
+        "A - B per seed",
+        "mean [95% CI]",
+        "seeds above / below 0",
+        "sign-flip p",
+        "smallest possible p",
+    ]
+    return [
+        "",
+        "## Seed level (the training seed is the unit: per-seed paired differences, Student-t 95% interval)",
+        "",
+        *comparison_lines(
+            report["seed_level"],
+            columns,
+            lambda a, b, v: [
+                ", ".join(f"{d:+.2f}" for d in v["diffs"]),
+                f"{v['mean_diff']:+.2f} [{v['ci95'][0]:+.2f}, {v['ci95'][1]:+.2f}]",
+                f"{v['above']} / {v['below']}",
+                f"{v['sign_flip_p']:.2f}",
+                f"{v['p_floor']:.2f}",
+            ],
+        ),
+    ]
