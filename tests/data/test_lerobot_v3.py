@@ -352,6 +352,56 @@ def test_cli_import_and_export(tmp_path, capsys):
 
 
 # ----- a synthetic data set: H.264, episodes spread over two video files ---------------------------------
+def write_v3_tables(root, rows, ep_rows, hw, fps):
+    """write_synthetic_v3's parquet tables (frames, episodes, tasks) and meta/info.json."""
+    vec = pa.list_(pa.float32(), 2)
+    pq.write_table(
+        pa.table(
+            {
+                "observation.state": pa.array([r["observation.state"] for r in rows], vec),
+                "action": pa.array([r["action"] for r in rows], vec),
+                "timestamp": pa.array([r["timestamp"] for r in rows], pa.float32()),
+                **{
+                    k: pa.array([r[k] for r in rows], pa.int64())
+                    for k in ("frame_index", "episode_index", "index", "task_index")
+                },
+            }
+        ),
+        root / "data/chunk-000/file-000.parquet",
+    )
+    pq.write_table(pa.Table.from_pylist(ep_rows), root / "meta/episodes/chunk-000/file-000.parquet")
+    pq.write_table(
+        pa.table({"task_index": [0, 1], "task": ["task 0", "task 1"]}), root / "meta/tasks.parquet"
+    )
+    feats = {
+        "observation.images.top": {
+            "dtype": "video",
+            "shape": [*hw, 3],
+            "names": ["height", "width", "channels"],
+            "info": {"video.codec": "h264"},
+        },
+        "observation.state": {"dtype": "float32", "shape": [2], "names": None},
+        "action": {"dtype": "float32", "shape": [2], "names": None},
+        **{
+            k: {"dtype": "int64", "shape": [1], "names": None}
+            for k in ("frame_index", "episode_index", "index", "task_index")
+        },
+        "timestamp": {"dtype": "float32", "shape": [1], "names": None},
+    }
+    (root / "meta/info.json").write_text(
+        json.dumps(
+            {
+                "codebase_version": "v3.0",
+                "fps": fps,
+                "features": feats,
+                "total_episodes": len(ep_rows),
+                "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
+                "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
+            }
+        )
+    )
+
+
 def write_synthetic_v3(root, lengths=(6, 7, 5), files=(0, 0, 1), fps=10, hw=(32, 32)):
     """A minimal LeRobot v3.0 data set: camera `observation.images.top` (H.264), frame (e, i) is uniform grey
     at level 30 + 60 * e + 5 * i; state = (e, i), action = (i, -i)."""
@@ -410,52 +460,7 @@ def write_synthetic_v3(root, lengths=(6, 7, 5), files=(0, 0, 1), fps=10, hw=(32,
         for p in s.encode():
             c.mux(p)
         c.close()
-    vec = pa.list_(pa.float32(), 2)
-    pq.write_table(
-        pa.table(
-            {
-                "observation.state": pa.array([r["observation.state"] for r in rows], vec),
-                "action": pa.array([r["action"] for r in rows], vec),
-                "timestamp": pa.array([r["timestamp"] for r in rows], pa.float32()),
-                **{
-                    k: pa.array([r[k] for r in rows], pa.int64())
-                    for k in ("frame_index", "episode_index", "index", "task_index")
-                },
-            }
-        ),
-        root / "data/chunk-000/file-000.parquet",
-    )
-    pq.write_table(pa.Table.from_pylist(ep_rows), root / "meta/episodes/chunk-000/file-000.parquet")
-    pq.write_table(
-        pa.table({"task_index": [0, 1], "task": ["task 0", "task 1"]}), root / "meta/tasks.parquet"
-    )
-    feats = {
-        "observation.images.top": {
-            "dtype": "video",
-            "shape": [*hw, 3],
-            "names": ["height", "width", "channels"],
-            "info": {"video.codec": "h264"},
-        },
-        "observation.state": {"dtype": "float32", "shape": [2], "names": None},
-        "action": {"dtype": "float32", "shape": [2], "names": None},
-        **{
-            k: {"dtype": "int64", "shape": [1], "names": None}
-            for k in ("frame_index", "episode_index", "index", "task_index")
-        },
-        "timestamp": {"dtype": "float32", "shape": [1], "names": None},
-    }
-    (root / "meta/info.json").write_text(
-        json.dumps(
-            {
-                "codebase_version": "v3.0",
-                "fps": fps,
-                "features": feats,
-                "total_episodes": len(lengths),
-                "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
-                "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
-            }
-        )
-    )
+    write_v3_tables(root, rows, ep_rows, hw, fps)
     return root
 
 
