@@ -61,3 +61,22 @@ def test_tally_splits_successes_by_the_short_limit_and_counts_outcomes_that_diff
     t = tally(long, short, limit=20)
     assert t["gaze"] == dict(episodes=4, within_short=2, within_long=3, only_long=1, mismatches=1)  # seed 3
     assert t["baseline"] == dict(episodes=1, within_short=1, within_long=1, only_long=0, mismatches=0)
+
+
+EXPERT_SCRIPT = Path(__file__).parents[1] / "scripts" / "expert_horizon.py"
+
+
+def test_expert_horizon_counts_the_experts_steps_on_the_evaluation_setups(tmp_path):
+    md = tmp_path / "expert.md"
+    args = [sys.executable, str(EXPERT_SCRIPT), "--preset", "quick", "--episodes", "2", "--max-steps", "200"]
+    r = subprocess.run([*args, "--out", str(md)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    rows = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in md.read_text().splitlines()}
+    for task in ("reach-v3", "button-press-topdown-v3"):  # the quick preset's tasks, solved by their experts
+        cells = rows[task]
+        assert (
+            cells[1] == "2" and cells[2] == "2" and cells[3] == "2" and 0 < int(cells[5].strip(" |")) <= 120
+        )
+    assert "seeds 1000..1001" in md.read_text() and r.stdout == md.read_text()
+    bad = subprocess.run([*args[:-2], "--max-steps", "10"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode != 0 and "--max-steps >= the preset's" in bad.stderr
