@@ -6,6 +6,7 @@ from gazereg.evaluation.summary import format_table, summarize
 from gazereg.report import (
     convergence,
     distance_table,
+    distance_value,
     markdown,
     paired_distance_tests,
     paired_tests,
@@ -78,6 +79,16 @@ def test_seed_level_tests_take_the_seed_as_the_unit():
     assert "gaze is better" in v[0] and "Seed level (2 seeds): mean +0.38" in v[0]
     assert "1 of 2 above 0 and 1 below" in v[0] and "includes 0: the seeds do not settle it" in v[0]
     assert seed_level_tests(records("baseline@s0", [0, 1]) + records("gaze@s0", [1, 1])) == {}
+
+    # A continuous outcome: the closest approach (metres), per seed; records without it are left out.
+    recs = [r for r in recs if not r["arm"].endswith("s2")]
+    for r in recs:
+        seed_shift = 0.02 if r["arm"].endswith("s0") else 0.04
+        r["min_distance"] = 0.10 - (seed_shift if r["arm"].startswith("gaze") else 0.0)
+    recs.append({**recs[0], "seed": 5000, "min_distance": None})
+    recs[-1].pop("min_distance")
+    d = seed_level_tests(recs, value=distance_value())["gaze vs baseline | clean"]
+    assert d["diffs"] == pytest.approx([-0.02, -0.04]) and (d["above"], d["below"]) == (0, 2)
 
 
 def test_distances_pool_seeds_and_pair_by_setup():

@@ -22,6 +22,7 @@ from gazereg.report.tables import (
     checkpoint_tally,
     convergence,
     distance_table,
+    distance_value,
     machine_summary,
     paired_distance_tests,
     paired_tests,
@@ -102,11 +103,13 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
     paired = paired_tests(episodes)
     seed_level = seed_level_tests(episodes)
     distance = paired_distance_tests(episodes)
+    distance_seeds = seed_level_tests(episodes, value=distance_value())
     verdicts = verdict(success, paired=paired, seed_level=seed_level)
     for control, records in controls.items():
         paired.update(paired_tests(records, control))
         seed_level.update(seed_level_tests(records, control))
         distance.update(paired_distance_tests(records, reference=control))
+        distance_seeds.update(seed_level_tests(records, control, distance_value()))
         verdicts += verdict(success_table(records), control, paired, seed_level=seed_level)
     conv = convergence(checkpoint_tally(_convergence_points(spec, outputs)), spec.threshold)
     figs = out / "figures"
@@ -119,7 +122,11 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
         "paired": paired,
         "per_seed": per_seed_table(episodes) if len(spec.train_seeds) > 1 else None,
         "seed_level": seed_level or None,
-        "distance": {"table": distance_table(episodes), "paired": distance},
+        "distance": {
+            "table": distance_table(episodes),
+            "paired": distance,
+            "seed_level": distance_seeds or None,
+        },
         "verdict": verdicts,
         "convergence": conv,
         "glc": outputs.glc,

@@ -59,30 +59,29 @@ def paired_lines(report: dict[str, Any]) -> list[str]:
     ]
 
 
+def seed_level_table(comparisons: dict[str, dict[str, Any]], digits: int = 2) -> list[str]:
+    """`tables.seed_level_tests` results as a table; differences with `digits` decimals."""
+    f = f"+.{digits}f"
+    return comparison_lines(
+        comparisons,
+        ["A - B per seed", "mean [95% CI]", "seeds above / below 0", "sign-flip p", "smallest possible p"],
+        lambda a, b, v: [
+            ", ".join(format(d, f) for d in v["diffs"]),
+            f"{v['mean_diff']:{f}} [{v['ci95'][0]:{f}}, {v['ci95'][1]:{f}}]",
+            f"{v['above']} / {v['below']}",
+            f"{v['sign_flip_p']:.2f}",
+            f"{v['p_floor']:.2f}",
+        ],
+    )
+
+
 def seed_level_lines(report: dict[str, Any]) -> list[str]:
-    """The paired comparisons again with the training seed as the unit (`tables.seed_level_tests`)."""
+    """The paired success comparisons again with the training seed as the unit (`tables.seed_level_tests`)."""
     if not report.get("seed_level"):
         return []
-    columns = [
-        "A - B per seed",
-        "mean [95% CI]",
-        "seeds above / below 0",
-        "sign-flip p",
-        "smallest possible p",
-    ]
     return [
         "",
         "## Seed level (the training seed is the unit: per-seed paired differences, Student-t 95% interval)",
         "",
-        *comparison_lines(
-            report["seed_level"],
-            columns,
-            lambda a, b, v: [
-                ", ".join(f"{d:+.2f}" for d in v["diffs"]),
-                f"{v['mean_diff']:+.2f} [{v['ci95'][0]:+.2f}, {v['ci95'][1]:+.2f}]",
-                f"{v['above']} / {v['below']}",
-                f"{v['sign_flip_p']:.2f}",
-                f"{v['p_floor']:.2f}",
-            ],
-        ),
+        *seed_level_table(report["seed_level"]),
     ]

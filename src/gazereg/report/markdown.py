@@ -13,7 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from gazereg.report.comparisons import paired_lines, seed_level_lines
+from gazereg.report.comparisons import paired_lines, seed_level_lines, seed_level_table
 from gazereg.report.ids import RunId
 from gazereg.report.sections import glc_lines, header_lines
 from gazereg.report.tables import split_paired_name
@@ -170,6 +170,9 @@ def distance_lines(report: dict[str, Any], conds: list[str]) -> list[str]:
                 f"| {a} vs {b} | {condition} | {v['n']} | {v['mean_diff']:+.4f} "
                 f"[{v['ci95'][0]:+.4f}, {v['ci95'][1]:+.4f}] | {v['p_value']:.4f} |"
             )
+    if dist.get("seed_level"):
+        lines += ["", "The same comparisons with the training seed as the unit (metres):", ""]
+        lines += seed_level_table(dist["seed_level"], digits=4)
     return lines
 
 

@@ -144,22 +144,37 @@ def paired_tests(records: list[dict[str, Any]], reference: str = "baseline") -> 
     return out
 
 
-def seed_level_tests(records: list[dict[str, Any]], reference: str = "baseline") -> dict[str, dict[str, Any]]:
-    """Each arm against `reference` per condition with the training seed as the unit: the paired success-rate
-    difference within each seed (episodes paired by task and setup seed), then `stats.seed_mean_difference`
-    over the seeds. Comparisons that share fewer than two seeds are left out. Unlike `paired_tests`, which
-    pools every episode, this lets seeds disagree: the spread between seeds widens the interval."""
+def seed_level_tests(
+    records: list[dict[str, Any]],
+    reference: str = "baseline",
+    value: Callable[[dict[str, Any]], float | None] = lambda r: float(bool(r["success"])),
+) -> dict[str, dict[str, Any]]:
+    """Each arm against `reference` per condition with the training seed as the unit: the mean paired
+    difference of `value(record)` (default: success, so a success-rate difference) within each seed
+    (episodes paired by task and setup seed; records whose value is None left out), then
+    `stats.seed_mean_difference` over the seeds. Comparisons that share fewer than two seeds are left out.
+    Unlike `paired_tests`, which pools every episode, this lets seeds disagree: their spread widens the
+    interval."""
+
+    def seed_and_value(r: dict[str, Any]) -> tuple[int, float] | None:
+        v = value(r)
+        return None if v is None else (run_of(r).seed, v)
+
     out = {}
-    pairs = paired_by_setup(records, lambda r: (run_of(r).seed, bool(r["success"])), reference)
-    for name, _, x, y in pairs:
-        by_seed: dict[int, list[int]] = defaultdict(list)
+    for name, _, x, y in paired_by_setup(records, seed_and_value, reference):
+        by_seed: dict[int, list[float]] = defaultdict(list)
         for (seed, a), (_, b) in zip(x, y):
-            by_seed[seed].append(int(a) - int(b))
+            by_seed[seed].append(a - b)
         if len(by_seed) >= 2:
             seeds = sorted(by_seed)
             diffs = [sum(by_seed[s]) / len(by_seed[s]) for s in seeds]
             out[name] = {"seeds": seeds, **seed_mean_difference(diffs)}
     return out
+
+
+def distance_value(key: str = "min_distance") -> Callable[[dict[str, Any]], float | None]:
+    """A record's per-episode distance `key` (metres), None where it was not recorded."""
+    return lambda r: float(r[key]) if key in r else None
 
 
 def distance_table(records: list[dict[str, Any]], key: str = "min_distance") -> dict[str, dict[str, Any]]:
@@ -183,7 +198,7 @@ def paired_distance_tests(
 ) -> dict[str, dict[str, Any]]:
     """Each arm against `reference` per condition on a per-episode distance, paired by (training seed, task,
     setup seed): mean difference (negative: closer than the reference), 95% interval, permutation p."""
-    pairs = paired_by_setup(records, lambda r: float(r[key]) if key in r else None, reference)
+    pairs = paired_by_setup(records, distance_value(key), reference)
     return {name: paired_mean_difference(x, y) for name, _, x, y in pairs}
 
 
