@@ -6,6 +6,11 @@ import functools
 import hashlib
 import json
 import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 
@@ -105,3 +110,59 @@ def test_fingerprints(tmp_path):
     assert first == hashlib.sha256(json.dumps(stats).encode()).hexdigest()[:16]
     (tmp_path / "model.safetensors").write_bytes(b"other weights")
     assert fingerprint_files(tmp_path) != first
+
+
+PARENT = """
+import functools, os, sys, time
+from pathlib import Path
+from gazereg.runtime.pool import WorkerPool
+
+class SleepingWorker:
+    def run(self, job):
+        Path(job).write_text(str(os.getpid()))
+        time.sleep(300)
+
+    def close(self):
+        pass
+
+if __name__ == "__main__":
+    with WorkerPool(SleepingWorker, workers=2) as pool:
+        pool.submit(sys.argv[1], tag=0)
+        for _ in pool.results():
+            pass
+"""
+
+
+def _alive(pid: int) -> bool:
+    """Whether process `pid` exists and is not a zombie (an orphan's zombie waits for a reaper)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states from /proc")
+def test_a_spawned_worker_ends_when_its_parent_is_killed(tmp_path):
+    """A killed run must not leave a worker behind in the middle of a job (it would go on writing into the
+    run folder that a resumed run shares)."""
+    (tmp_path / "parent.py").write_text(PARENT)
+    marker = tmp_path / "worker.pid"
+    parent = subprocess.Popen([sys.executable, str(tmp_path / "parent.py"), str(marker)], cwd=tmp_path)
+    try:
+        deadline = time.monotonic() + 120
+        while not marker.exists() or not marker.read_text():
+            assert time.monotonic() < deadline and parent.poll() is None, "the worker never started its job"
+            time.sleep(0.1)
+        worker = int(marker.read_text())
+        assert _alive(worker)
+        parent.send_signal(signal.SIGKILL)  # no clean-up in the parent: only the worker's own watch can act
+        parent.wait(timeout=30)
+        deadline = time.monotonic() + 30
+        while _alive(worker) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not _alive(worker), f"worker {worker} outlived its killed parent"
+    finally:
+        parent.kill()
+        if marker.exists() and marker.read_text() and _alive(int(marker.read_text())):
+            os.kill(int(marker.read_text()), signal.SIGKILL)  # the failure's orphan

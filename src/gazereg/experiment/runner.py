@@ -60,6 +60,7 @@ from gazereg.runtime.clock import ResumableClock
 from gazereg.runtime.config import check_same_config, save_config, to_dict
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_json, sweep_stale_temps
+from gazereg.runtime.pool import exit_with_parent
 from gazereg.training.checkpoint import latest_checkpoint, list_checkpoints
 from gazereg.training.config import TrainConfig
 from gazereg.training.loop import train
@@ -248,7 +249,8 @@ class Experiment:
         if self.cfg.parallel <= 1:
             finished = [_train_one(cfg) for _, cfg in jobs]
         else:
-            with ProcessPoolExecutor(self.cfg.parallel, mp_context=get_context("spawn")) as ex:
+            ctx = get_context("spawn")
+            with ProcessPoolExecutor(self.cfg.parallel, mp_context=ctx, initializer=exit_with_parent) as ex:
                 finished = list(ex.map(_train_one, [cfg for _, cfg in jobs]))
         return {"runs": {str(run): res for (run, _), res in zip(jobs, finished)}}
 

@@ -17,7 +17,8 @@ callable: a class or a `functools.partial` of one), and runs every job it gets w
 what a worker loads (policies, simulators) is reused across jobs. `workers` <= 1 builds the worker in this
 process, when the pool opens, and runs the jobs there in the order they were submitted. Results come back
 to the parent as jobs finish (submission order in-process); an exception raised by a job is raised from
-`results()`, and leaving the pool on an error cancels the jobs not yet started.
+`results()`, and leaving the pool on an error cancels the jobs not yet started. A spawned worker ends
+itself when its parent dies (`exit_with_parent`), so a killed run leaves no worker behind.
 
 Resume log. An append-only JSON-lines file, one `{"key": str, "record": ...}` per finished job, flushed
 and fsynced per line, so a killed job keeps every finished line; `read` maps each key to its latest record
@@ -31,6 +32,8 @@ import hashlib
 import json
 import logging
 import os
+import threading
+import time
 from collections import deque
 from collections.abc import Callable, Hashable, Iterator, Mapping
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -70,8 +73,25 @@ def available_cores() -> int:
 _child_worker: Worker[Any, Any] | None = None
 
 
+def exit_with_parent(poll_s: float = 1.0) -> None:
+    """In a spawned worker process: end it (exit status 1, a line on stderr) within `poll_s` seconds of its
+    parent's death, by a daemon thread that watches the parent's pid. A killed experiment would otherwise leave
+    workers in the middle of a training or rollout job, writing on into a run folder that a resumed run then
+    shares with them. Writes are atomic, so an abrupt exit loses only the job in flight."""
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(poll_s)
+        os.write(2, f"gazereg worker {os.getpid()}: its parent {parent} is gone; exiting\n".encode())
+        os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
 def _start_worker(make_worker: Callable[[], Worker[Any, Any]], environ: Mapping[str, str]) -> None:
     global _child_worker
+    exit_with_parent()
     for name, value in environ.items():
         os.environ.setdefault(name, value)
     _child_worker = make_worker()
