@@ -45,6 +45,9 @@ def test_a_one_seed_block_of_more_than_two_arms_has_the_per_task_table(report):
     block = results_block(report, "figures/f.png")
     assert block.index("Per task (clean):") < block.index(report["verdict"][0])
     assert "| perturbed | 0/2 [0.00, 0.66] |" in block
+    assert "## The glc arm's estimator" in block and "AUC 0.975 (centre prior 1.000" in block
+    report["glc"] = None  # a run without a glc arm (the quick preset's) has no such section
+    assert "glc arm's estimator" not in results_block(report, "figures/f.png")
 
 
 def test_a_one_seed_block_of_more_than_two_tasks_has_the_per_task_table(report):

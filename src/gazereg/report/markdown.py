@@ -326,5 +326,5 @@ def results_block(report: dict[str, Any], figure: str) -> str:
         ]
     elif len(report["tasks"]) > 2 or len(report["success"]) > 2:  # the pooled headline hides too much
         lines += [*per_task_lines(report), ""]
-    lines += [*report["verdict"], "", f"![attention]({figure})", ""]
+    lines += [*glc_lines(report), *report["verdict"], "", f"![attention]({figure})", ""]
     return "\n".join(lines)

@@ -62,12 +62,17 @@ def glc_lines(report: dict[str, Any]) -> list[str]:
     if not glc or not glc.get("eval"):
         return []
     g = glc["eval"]
+    auc = (
+        f"; AUC {g['glc_auc']:.3f} (centre prior {g['centre_prior_auc']:.3f}, uniform {g['uniform_auc']:.3f})"
+        if "glc_auc" in g
+        else ""
+    )
     return [
         "## The glc arm's estimator",
         "",
         f"A small GLC trained here for {glc['steps']} steps on other setups' simulated gaze; on its "
         f"held-out episodes {g['heldout']}: F1 {g['glc_f1']:.3f} (centre prior {g['centre_prior_f1']:.3f}, "
-        f"uniform {g['uniform_f1']:.3f}).",
+        f"uniform {g['uniform_f1']:.3f}){auc}.",
         "",
     ]
 
