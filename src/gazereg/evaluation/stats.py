@@ -194,8 +194,8 @@ def student_t_quantile(p: float, df: int) -> float:
 
 
 def seed_mean_difference(diffs: Sequence[float]) -> dict[str, Any]:
-    """Inference with the training seed as the unit: `diffs` holds one paired success-rate difference (arm
-    minus reference) per seed. Returns their mean, a Student-t 95% interval (n - 1 df), how many seeds are
+    """Inference with the training seed as the unit: `diffs` holds one mean paired difference (arm minus
+    reference: a success rate, or a distance) per seed. Returns their mean, a Student-t 95% interval (n - 1 df), how many seeds are
     above and below zero, and the exact two-sided sign-flip p-value over all 2^n sign patterns, whose floor
     (`p_floor`, 2 / 2^n when no difference is 0) says how small a p-value this many seeds can give."""
     d = np.asarray(diffs, dtype=np.float64)

@@ -1,5 +1,6 @@
 """The paired comparisons of report.json as markdown tables: each arm against its reference on the same
-setups (`paired_lines`) and the same comparisons with the training seed as the unit (`seed_level_lines`).
+setups (`paired_lines`), the same comparisons with the training seed as the unit (`seed_level_lines`), and the
+one row-per-comparison table writer they and the closest-approach tables share (`comparison_lines`).
 """
 
 from __future__ import annotations
@@ -20,12 +21,15 @@ def rate_difference(test: dict[str, Any]) -> str:
 
 
 def comparison_lines(
-    comparisons: dict[str, dict[str, Any]], columns: list[str], cells: Callable[[str, str, dict], list[str]]
+    comparisons: dict[str, dict[str, Any]],
+    columns: list[str],
+    cells: Callable[[str, str, dict], list[str]],
+    label: str = "comparison (A vs B)",
 ) -> list[str]:
     """A table with one row per comparison ("A vs B | condition" keys, `tables.paired_name`): its two leading
-    columns, then `columns` filled by `cells(A, B, the comparison's values)`."""
+    columns (`label`, condition), then `columns` filled by `cells(A, B, the comparison's values)`."""
     lines = [
-        "| comparison (A vs B) | condition | " + " | ".join(columns) + " |",
+        f"| {label} | condition | " + " | ".join(columns) + " |",
         "|---|---|" + "---|" * len(columns),
     ]
     for k, v in comparisons.items():

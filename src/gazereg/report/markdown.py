@@ -13,10 +13,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from gazereg.report.comparisons import paired_lines, seed_level_lines, seed_level_table
+from gazereg.report.comparisons import comparison_lines, paired_lines, seed_level_lines, seed_level_table
 from gazereg.report.ids import RunId
 from gazereg.report.sections import glc_lines, header_lines
-from gazereg.report.tables import split_paired_name
 
 # attention-vs-gaze metrics shown, in this column order: report.md shows them all, the results block a subset
 REPORT_ALIGNMENT_KEYS = (
@@ -159,17 +158,17 @@ def distance_lines(report: dict[str, Any], conds: list[str]) -> list[str]:
         ]
         lines.append(f"| {a} | " + " | ".join(cells) + " |")
     if dist.get("paired"):
-        lines += [
-            "",
-            "| comparison | condition | pairs | mean difference [95% interval] | permutation p |",
-            "|---|---|---|---|---|",
-        ]
-        for k, v in dist["paired"].items():
-            a, b, condition = split_paired_name(k)
-            lines.append(
-                f"| {a} vs {b} | {condition} | {v['n']} | {v['mean_diff']:+.4f} "
-                f"[{v['ci95'][0]:+.4f}, {v['ci95'][1]:+.4f}] | {v['p_value']:.4f} |"
-            )
+        lines.append("")
+        lines += comparison_lines(
+            dist["paired"],
+            ["pairs", "mean difference [95% interval]", "permutation p"],
+            lambda a, b, v: [
+                str(v["n"]),
+                f"{v['mean_diff']:+.4f} [{v['ci95'][0]:+.4f}, {v['ci95'][1]:+.4f}]",
+                f"{v['p_value']:.4f}",
+            ],
+            label="comparison",
+        )
     if dist.get("seed_level"):
         lines += ["", "The same comparisons with the training seed as the unit (metres):", ""]
         lines += seed_level_table(dist["seed_level"], digits=4)

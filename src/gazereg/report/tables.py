@@ -278,8 +278,9 @@ def verdict(
             apart = not overlap(c["ci95"], r["ci95"])
             intervals = "the 95% intervals do not overlap" if apart else "the 95% intervals overlap"
             better = "better" if diff > 0 else "worse"
-            test = (paired or {}).get(paired_name(arm, reference, cond))
-            seeds = (seed_level or {}).get(paired_name(arm, reference, cond))
+            name = paired_name(arm, reference, cond)
+            test = (paired or {}).get(name)
+            seeds = (seed_level or {}).get(name)
             tail = seed_clause(seeds) if seeds else ""
             if test is not None:
                 p = test["mcnemar_p"]
