@@ -62,6 +62,34 @@ def test_a_one_seed_block_of_more_than_two_tasks_has_the_per_task_table(report):
     assert "| arm | reach-v3 | push-v3 | soccer-v3 |" in block  # no more tasks than arms: a row per arm
 
 
+def test_a_task_level_analysis_makes_a_one_seed_block_the_powered_comparison(report):
+    report["task_level"] = {
+        "gaze vs baseline | clean": {
+            "units": ["push-v3", "reach-v3", "soccer-v3"],
+            "n": 3,
+            "diffs": [0.5, -0.25, 0.125],
+            "mean_diff": 0.125,
+            "ci95": [-0.8, 1.05],
+            "above": 2,
+            "below": 1,
+            "sign_flip_p": 0.75,
+            "p_floor": 0.25,
+        }
+    }
+    block = results_block(report, "figures/f.png")
+    assert block.index("Paired comparisons") < block.index("## Task level (the task is the unit")
+    assert "Per-task differences in the order push-v3, reach-v3, soccer-v3." in block
+    assert (
+        "| gaze vs baseline | clean | +0.50, -0.25, +0.12 | +0.12 [-0.80, +1.05] | 2 / 1 | 0.75 | 0.25 |"
+        in block
+    )
+    assert (
+        "| comparison (A vs B) | condition | A - B per task | mean [95% CI] | tasks above / below 0 |"
+        in block
+    )
+    assert "## Seed level" not in block and "## Task level" in markdown(report)
+
+
 def test_the_quick_preset_names_make_demo(report):
     report["preset"] = "quick"
     assert "(`make demo`)" in headline_lines(report)[0]

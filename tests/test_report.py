@@ -12,8 +12,8 @@ from gazereg.report import (
     paired_tests,
     per_seed_table,
     results_block,
-    seed_level_tests,
     success_table,
+    unit_level_tests,
     verdict,
 )
 
@@ -70,15 +70,15 @@ def test_seed_level_tests_take_the_seed_as_the_unit():
         + records("gaze@s1", [1] * 15 + [0] * 5)  # seed 1: -0.25
         + records("gaze@s2", [1] * 20)  # no baseline at seed 2: no pairs there
     )
-    t = seed_level_tests(recs)["gaze vs baseline | clean"]
-    assert t["seeds"] == [0, 1] and t["diffs"] == [1.0, -0.25] and t["mean_diff"] == pytest.approx(0.375)
+    t = unit_level_tests(recs)["gaze vs baseline | clean"]
+    assert t["units"] == [0, 1] and t["diffs"] == [1.0, -0.25] and t["mean_diff"] == pytest.approx(0.375)
     assert (t["above"], t["below"]) == (1, 1) and t["ci95"][0] < 0 < t["ci95"][1]
     # Pooled over episodes the same data look decisive; the seeds do not.
     assert paired_tests(recs)["gaze vs baseline | clean"]["mcnemar_p"] < 0.05
-    v = verdict(success_table(recs), paired=paired_tests(recs), seed_level=seed_level_tests(recs))
+    v = verdict(success_table(recs), paired=paired_tests(recs), levels={"seed": unit_level_tests(recs)})
     assert "gaze is better" in v[0] and "Seed level (2 seeds): mean +0.38" in v[0]
     assert "1 of 2 above 0 and 1 below" in v[0] and "includes 0: the seeds do not settle it" in v[0]
-    assert seed_level_tests(records("baseline@s0", [0, 1]) + records("gaze@s0", [1, 1])) == {}
+    assert unit_level_tests(records("baseline@s0", [0, 1]) + records("gaze@s0", [1, 1])) == {}
 
     # A continuous outcome: the closest approach (metres), per seed; records without it are left out.
     recs = [r for r in recs if not r["arm"].endswith("s2")]
@@ -87,8 +87,26 @@ def test_seed_level_tests_take_the_seed_as_the_unit():
         r["min_distance"] = 0.10 - (seed_shift if r["arm"].startswith("gaze") else 0.0)
     recs.append({**recs[0], "seed": 5000, "min_distance": None})
     recs[-1].pop("min_distance")
-    d = seed_level_tests(recs, value=distance_value())["gaze vs baseline | clean"]
+    d = unit_level_tests(recs, value=distance_value())["gaze vs baseline | clean"]
     assert d["diffs"] == pytest.approx([-0.02, -0.04]) and (d["above"], d["below"]) == (0, 2)
+
+
+def test_unit_level_tests_take_the_task_as_the_unit():
+    recs = []
+    for task, (ref, arm) in {"a-v3": (2, 8), "b-v3": (5, 9), "c-v3": (10, 9)}.items():
+        for run in ("baseline@s0", "baseline@s1"):
+            recs += records(run, [1] * ref + [0] * (10 - ref), task=task)
+        for run in ("gaze@s0", "gaze@s1"):
+            recs += records(run, [1] * arm + [0] * (10 - arm), task=task)
+    t = unit_level_tests(recs, "task")["gaze vs baseline | clean"]
+    assert t["units"] == ["a-v3", "b-v3", "c-v3"] and t["diffs"] == pytest.approx([0.6, 0.4, -0.1])
+    assert (t["n"], t["above"], t["below"]) == (3, 2, 1)
+    assert unit_level_tests(recs, "seed")["gaze vs baseline | clean"]["diffs"] == pytest.approx([0.3, 0.3])
+    levels = {"seed": unit_level_tests(recs, "seed"), "task": unit_level_tests(recs, "task")}
+    v = verdict(success_table(recs), paired=paired_tests(recs), levels=levels)[0]
+    assert "Seed level (2 seeds)" in v and "Task level (3 tasks): mean +0.30" in v
+    assert "2 of 3 above 0 and 1 below" in v and "the tasks do not settle it" in v
+    assert unit_level_tests(records("baseline@s0", [0, 1]) + records("gaze@s0", [1, 1]), "task") == {}
 
 
 def test_distances_pool_seeds_and_pair_by_setup():

@@ -8,10 +8,10 @@ from gazereg.evaluation.stats import (
     fisher_exact,
     mcnemar_exact,
     paired_rate_difference,
-    seed_mean_difference,
     steps_to_threshold,
     student_t_cdf,
     student_t_quantile,
+    unit_mean_difference,
     wilson,
 )
 
@@ -145,17 +145,17 @@ def test_student_t_matches_scipy():
             assert student_t_cdf(t, df) == pytest.approx(float(stats.t.cdf(t, df)), abs=1e-12)
 
 
-def test_seed_mean_difference_uses_seeds_as_the_unit():
-    r = seed_mean_difference([0.1, 0.3, 0.2])
+def test_unit_mean_difference_uses_seeds_as_the_unit():
+    r = unit_mean_difference([0.1, 0.3, 0.2])
     assert r["mean_diff"] == pytest.approx(0.2) and r["above"] == 3 and r["below"] == 0
     half = 4.302653 * 0.1 / math.sqrt(3)  # t(0.975, 2) * sd / sqrt(n)
     assert r["ci95"] == pytest.approx([0.2 - half, 0.2 + half], abs=1e-6)
     assert r["sign_flip_p"] == pytest.approx(0.25) and r["p_floor"] == pytest.approx(0.25)
     # Seeds that disagree: the interval spans 0 and the sign-flip test sees it.
-    r = seed_mean_difference([-0.03, 0.25, 0.0])
+    r = unit_mean_difference([-0.03, 0.25, 0.0])
     assert r["ci95"][0] < 0 < r["ci95"][1] and (r["above"], r["below"]) == (1, 1)
     assert r["sign_flip_p"] == pytest.approx(1.0)  # every sign pattern's |mean| is 0.22/3 or 0.28/3
-    assert seed_mean_difference([0.1] * 5)["p_floor"] == pytest.approx(2 / 32)
+    assert unit_mean_difference([0.1] * 5)["p_floor"] == pytest.approx(2 / 32)
     for bad in ([0.1], [0.1, float("nan")]):
         with pytest.raises(ValueError):
-            seed_mean_difference(bad)
+            unit_mean_difference(bad)

@@ -193,22 +193,23 @@ def student_t_quantile(p: float, df: int) -> float:
     return (lo + hi) / 2
 
 
-def seed_mean_difference(diffs: Sequence[float]) -> dict[str, Any]:
-    """Inference with the training seed as the unit: `diffs` holds one mean paired difference (arm minus
-    reference: a success rate, or a distance) per seed. Returns their mean, a Student-t 95% interval (n - 1 df), how many seeds are
-    above and below zero, and the exact two-sided sign-flip p-value over all 2^n sign patterns, whose floor
-    (`p_floor`, 2 / 2^n when no difference is 0) says how small a p-value this many seeds can give."""
+def unit_mean_difference(diffs: Sequence[float]) -> dict[str, Any]:
+    """Inference with a unit of replication (a training seed, or a task) as the sample: `diffs` holds one mean
+    paired difference (arm minus reference: a success rate, or a distance) per unit. Returns their count `n`,
+    their mean, a Student-t 95% interval (n - 1 df), how many units are above and below zero, and the exact
+    two-sided sign-flip p-value over all 2^n sign patterns, whose floor (`p_floor`, 2 / 2^n when no difference
+    is 0) says how small a p-value this many units can give."""
     d = np.asarray(diffs, dtype=np.float64)
     if d.ndim != 1 or len(d) < 2:
-        raise ValueError(f"a seed-level comparison needs at least two seeds, got {len(d)}")
+        raise ValueError(f"a unit-level comparison needs at least two units (seeds or tasks), got {len(d)}")
     if not np.isfinite(d).all():
-        raise ValueError("per-seed differences must be finite")
+        raise ValueError("per-unit differences must be finite")
     n, mean = len(d), float(d.mean())
     half = student_t_quantile(0.975, n - 1) * float(d.std(ddof=1)) / math.sqrt(n)
     signs = np.array(np.meshgrid(*[[-1.0, 1.0]] * n)).reshape(n, -1).T
     null = np.abs((signs * d).mean(axis=1))
     return {
-        "n_seeds": n,
+        "n": n,
         "diffs": [float(x) for x in d],
         "mean_diff": mean,
         "ci95": [mean - half, mean + half],

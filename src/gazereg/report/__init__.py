@@ -23,8 +23,8 @@ from gazereg.report.tables import (
     paired_tests,
     per_seed_table,
     run_of,
-    seed_level_tests,
     success_table,
+    unit_level_tests,
     verdict,
 )
 
@@ -51,8 +51,8 @@ __all__ = [
     "plot_success",
     "results_block",
     "run_of",
-    "seed_level_tests",
     "success_table",
+    "unit_level_tests",
     "verdict",
     "write_report",
 ]

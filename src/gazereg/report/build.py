@@ -28,12 +28,16 @@ from gazereg.report.tables import (
     paired_tests,
     per_seed_table,
     run_of,
-    seed_level_tests,
     success_table,
+    unit_level_tests,
     verdict,
 )
 from gazereg.runtime.io import atomic_write_json, atomic_write_text
 from gazereg.training.logger import read_metrics
+
+MIN_TASK_LEVEL_TASKS = 3
+"""the fewest tasks for which the report takes the task as the unit too (with two, the t interval has one
+degree of freedom and the sign-flip test's smallest p is 0.5: the per-task table says as much)"""
 
 Record = dict[str, Any]
 """one evaluation episode as `evaluation.rollout` writes it: arm (a `RunId`'s text), task, condition, seed
@@ -101,16 +105,19 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
     controls = {c: gaze_and_control(episodes, spec.arms, c) for c in GAZE_CONTROLS}
     controls = {c: records for c, records in controls.items() if records}
     paired = paired_tests(episodes)
-    seed_level = seed_level_tests(episodes)
+    levels = {"seed": unit_level_tests(episodes, "seed")}
+    if len(spec.tasks) >= MIN_TASK_LEVEL_TASKS:
+        levels["task"] = unit_level_tests(episodes, "task")
     distance = paired_distance_tests(episodes)
-    distance_seeds = seed_level_tests(episodes, value=distance_value())
-    verdicts = verdict(success, paired=paired, seed_level=seed_level)
+    distance_seeds = unit_level_tests(episodes, "seed", value=distance_value())
+    verdicts = verdict(success, paired=paired, levels=levels)
     for control, records in controls.items():
         paired.update(paired_tests(records, control))
-        seed_level.update(seed_level_tests(records, control))
+        for unit, tests in levels.items():
+            tests.update(unit_level_tests(records, unit, control))
         distance.update(paired_distance_tests(records, reference=control))
-        distance_seeds.update(seed_level_tests(records, control, distance_value()))
-        verdicts += verdict(success_table(records), control, paired, seed_level=seed_level)
+        distance_seeds.update(unit_level_tests(records, "seed", control, distance_value()))
+        verdicts += verdict(success_table(records), control, paired, levels=levels)
     conv = convergence(checkpoint_tally(_convergence_points(spec, outputs)), spec.threshold)
     figs = out / "figures"
     figs.mkdir(parents=True, exist_ok=True)
@@ -121,7 +128,8 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
         "success": success,
         "paired": paired,
         "per_seed": per_seed_table(episodes) if len(spec.train_seeds) > 1 else None,
-        "seed_level": seed_level or None,
+        "seed_level": levels["seed"] or None,
+        "task_level": levels.get("task") or None,
         "distance": {
             "table": distance_table(episodes),
             "paired": distance,

@@ -1,5 +1,5 @@
 """The paired comparisons of report.json as markdown tables: each arm against its reference on the same
-setups (`paired_lines`), the same comparisons with the training seed as the unit (`seed_level_lines`), and the
+setups (`paired_lines`), the same comparisons with the training seed or the task as the unit (`unit_level_lines`), and the
 one row-per-comparison table writer they and the closest-approach tables share (`comparison_lines`).
 """
 
@@ -63,12 +63,21 @@ def paired_lines(report: dict[str, Any]) -> list[str]:
     ]
 
 
-def seed_level_table(comparisons: dict[str, dict[str, Any]], digits: int = 2) -> list[str]:
-    """`tables.seed_level_tests` results as a table; differences with `digits` decimals."""
+def unit_level_table(
+    comparisons: dict[str, dict[str, Any]], unit: str = "seed", digits: int = 2
+) -> list[str]:
+    """`tables.unit_level_tests` results (the `unit`, "seed" or "task", as the sample) as a table; differences
+    with `digits` decimals."""
     f = f"+.{digits}f"
     return comparison_lines(
         comparisons,
-        ["A - B per seed", "mean [95% CI]", "seeds above / below 0", "sign-flip p", "smallest possible p"],
+        [
+            f"A - B per {unit}",
+            "mean [95% CI]",
+            f"{unit}s above / below 0",
+            "sign-flip p",
+            "smallest possible p",
+        ],
         lambda a, b, v: [
             ", ".join(format(d, f) for d in v["diffs"]),
             f"{v['mean_diff']:{f}} [{v['ci95'][0]:{f}}, {v['ci95'][1]:{f}}]",
@@ -79,13 +88,21 @@ def seed_level_table(comparisons: dict[str, dict[str, Any]], digits: int = 2) ->
     )
 
 
-def seed_level_lines(report: dict[str, Any]) -> list[str]:
-    """The paired success comparisons again with the training seed as the unit (`tables.seed_level_tests`)."""
-    if not report.get("seed_level"):
-        return []
-    return [
-        "",
-        "## Seed level (the training seed is the unit: per-seed paired differences, Student-t 95% interval)",
-        "",
-        *seed_level_table(report["seed_level"]),
-    ]
+UNIT_HEADINGS = {
+    "seed": "## Seed level (the training seed is the unit: per-seed paired differences, Student-t 95% interval)",
+    "task": "## Task level (the task is the unit: per-task paired differences, Student-t 95% interval)",
+}
+
+
+def unit_level_lines(report: dict[str, Any]) -> list[str]:
+    """The paired success comparisons again with the training seed, then the task, as the unit
+    (`tables.unit_level_tests`), each where the report has them."""
+    lines = []
+    for unit, heading in UNIT_HEADINGS.items():
+        if report.get(f"{unit}_level"):
+            lines += ["", heading, ""]
+            if unit == "task":  # the order of each row's per-task differences
+                order = next(iter(report["task_level"].values()))["units"]
+                lines += [f"Per-task differences in the order {', '.join(order)}.", ""]
+            lines += unit_level_table(report[f"{unit}_level"], unit)
+    return lines

@@ -13,7 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from gazereg.report.comparisons import comparison_lines, paired_lines, seed_level_lines, seed_level_table
+from gazereg.report.comparisons import comparison_lines, paired_lines, unit_level_lines, unit_level_table
 from gazereg.report.ids import RunId
 from gazereg.report.sections import glc_lines, header_lines
 
@@ -171,7 +171,7 @@ def distance_lines(report: dict[str, Any], conds: list[str]) -> list[str]:
         )
     if dist.get("seed_level"):
         lines += ["", "The same comparisons with the training seed as the unit (metres):", ""]
-        lines += seed_level_table(dist["seed_level"], digits=4)
+        lines += unit_level_table(dist["seed_level"], "seed", digits=4)
     return lines
 
 
@@ -266,7 +266,7 @@ def markdown(report: dict[str, Any]) -> str:
         "",
         *drop_lines(report),
         *paired_lines(report),
-        *seed_level_lines(report),
+        *unit_level_lines(report),
         *distance_lines(report, conditions(report)),
         *val_loss_lines(report),
         "",
@@ -301,8 +301,8 @@ def headline_lines(report: dict[str, Any]) -> list[str]:
 
 def results_block(report: dict[str, Any], figure: str) -> str:
     """One run's results block for docs/results.md: the headline, attention vs gaze, (for several training
-    seeds) the per-task, per-seed, paired, distance, loss and convergence tables, (for one seed and more than
-    two tasks or arms) the per-task table, the verdict and the attention figure at the relative path `figure`. Ends
+    seeds, or a task-level analysis) the per-task, per-seed, paired, unit-level, distance, loss and convergence
+    tables, (otherwise, for more than two tasks or arms) the per-task table, the verdict and the attention figure at the relative path `figure`. Ends
     with a newline."""
     lines = [*headline_lines(report), ""]
     if report.get("alignment"):
@@ -312,12 +312,12 @@ def results_block(report: dict[str, Any], figure: str) -> str:
             *alignment_table_lines(report["alignment"], BLOCK_ALIGNMENT_KEYS),
             "",
         ]
-    if len(report["train"]["seeds"]) > 1:  # the powered comparison: per task, paired tests, distances
+    if len(report["train"]["seeds"]) > 1 or report.get("task_level"):  # the powered comparison
         lines += [
             *per_task_lines(report),
             *per_seed_lines(report),
             *paired_lines(report),
-            *seed_level_lines(report),
+            *unit_level_lines(report),
             *distance_lines(report, conditions(report)),
             *val_loss_lines(report),
             "",

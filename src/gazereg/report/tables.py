@@ -13,7 +13,7 @@ import platform
 import statistics
 from collections import defaultdict
 from collections.abc import Callable, Iterable, Iterator
-from typing import Any
+from typing import Any, Literal
 
 import torch
 
@@ -22,8 +22,8 @@ from gazereg.evaluation.stats import (
     mcnemar_exact,
     paired_mean_difference,
     paired_rate_difference,
-    seed_mean_difference,
     steps_to_threshold,
+    unit_mean_difference,
     wilson,
 )
 from gazereg.report.ids import RunId
@@ -144,31 +144,36 @@ def paired_tests(records: list[dict[str, Any]], reference: str = "baseline") -> 
     return out
 
 
-def seed_level_tests(
+Unit = Literal["seed", "task"]
+"""what a unit-level test takes as its sample: the training seed, or the task"""
+
+
+def unit_level_tests(
     records: list[dict[str, Any]],
+    unit: Unit = "seed",
     reference: str = "baseline",
     value: Callable[[dict[str, Any]], float | None] = lambda r: float(bool(r["success"])),
 ) -> dict[str, dict[str, Any]]:
-    """Each arm against `reference` per condition with the training seed as the unit: the mean paired
-    difference of `value(record)` (default: success, so a success-rate difference) within each seed
-    (episodes paired by task and setup seed; records whose value is None left out), then
-    `stats.seed_mean_difference` over the seeds. Comparisons that share fewer than two seeds are left out.
-    Unlike `paired_tests`, which pools every episode, this lets seeds disagree: their spread widens the
-    interval."""
+    """Each arm against `reference` per condition with the `unit` (training seed, or task) as the sample: the
+    mean paired difference of `value(record)` (default: success, so a success-rate difference) within each
+    unit (episodes paired by training seed, task and setup seed; records whose value is None left out), then
+    `stats.unit_mean_difference` over the units, each result with its sorted "units". Comparisons that share
+    fewer than two units are left out. Unlike `paired_tests`, which pools every episode, this lets seeds (or
+    tasks) disagree: their spread widens the interval."""
 
-    def seed_and_value(r: dict[str, Any]) -> tuple[int, float] | None:
+    def unit_and_value(r: dict[str, Any]) -> tuple[int | str, float] | None:
         v = value(r)
-        return None if v is None else (run_of(r).seed, v)
+        return None if v is None else (run_of(r).seed if unit == "seed" else r["task"], v)
 
     out = {}
-    for name, _, x, y in paired_by_setup(records, seed_and_value, reference):
-        by_seed: dict[int, list[float]] = defaultdict(list)
-        for (seed, a), (_, b) in zip(x, y):
-            by_seed[seed].append(a - b)
-        if len(by_seed) >= 2:
-            seeds = sorted(by_seed)
-            diffs = [sum(by_seed[s]) / len(by_seed[s]) for s in seeds]
-            out[name] = {"seeds": seeds, **seed_mean_difference(diffs)}
+    for name, _, x, y in paired_by_setup(records, unit_and_value, reference):
+        by_unit: dict[int | str, list[float]] = defaultdict(list)
+        for (u, a), (_, b) in zip(x, y):
+            by_unit[u].append(a - b)
+        if len(by_unit) >= 2:
+            units = sorted(by_unit)
+            diffs = [sum(by_unit[u]) / len(by_unit[u]) for u in units]
+            out[name] = {"units": units, **unit_mean_difference(diffs)}
     return out
 
 
@@ -242,16 +247,16 @@ def overlap(a: list[float], b: list[float]) -> bool:
     return a[0] <= b[1] and b[0] <= a[1]
 
 
-def seed_clause(test: dict[str, Any]) -> str:
-    """One sentence on a `seed_level_tests` result: the mean of the per-seed differences, its t interval, how
-    many seeds point each way, and whether the seeds agree with the pooled test."""
+def unit_clause(test: dict[str, Any], unit: Unit) -> str:
+    """One sentence on a `unit_level_tests` result: the mean of the per-unit (seed or task) differences, its t
+    interval, how many units point each way, and whether they settle it."""
     lo, hi = test["ci95"]
-    n = test["n_seeds"]
-    agree = "excludes 0" if lo > 0 or hi < 0 else "includes 0: the seeds do not settle it"
+    n, units = test["n"], f"{unit}s"
+    agree = "excludes 0" if lo > 0 or hi < 0 else f"includes 0: the {units} do not settle it"
     return (
-        f" Seed level ({n} seeds): mean {test['mean_diff']:+.2f}, t 95% CI [{lo:+.2f}, {hi:+.2f}], "
+        f" {unit.capitalize()} level ({n} {units}): mean {test['mean_diff']:+.2f}, t 95% CI [{lo:+.2f}, {hi:+.2f}], "
         f"{test['above']} of {n} above 0 and {test['below']} below, sign-flip p = {test['sign_flip_p']:.2f} "
-        f"(the smallest {n} seeds can give: {test['p_floor']:.2f}); the interval {agree}."
+        f"(the smallest {n} {units} can give: {test['p_floor']:.2f}); the interval {agree}."
     )
 
 
@@ -260,11 +265,12 @@ def verdict(
     reference: str = "baseline",
     paired: dict[str, dict[str, Any]] | None = None,
     alpha: float = 0.05,
-    seed_level: dict[str, dict[str, Any]] | None = None,
+    levels: dict[Unit, dict[str, dict[str, Any]]] | None = None,
 ) -> list[str]:
     """Plain sentences on what the data allow one to conclude: with `paired_tests`' results, the paired exact
     test on the shared setups decides (at `alpha`); without, only non-overlapping Wilson intervals do. With
-    `seed_level_tests`' results (several training seeds), each sentence also says whether the seeds agree."""
+    `levels` ({unit: `unit_level_tests`' results}, for several training seeds or tasks), each sentence also
+    says whether the seeds (tasks) settle it."""
     if reference not in success:
         return ["No baseline arm: no comparison."]
     out = []
@@ -280,8 +286,9 @@ def verdict(
             better = "better" if diff > 0 else "worse"
             name = paired_name(arm, reference, cond)
             test = (paired or {}).get(name)
-            seeds = (seed_level or {}).get(name)
-            tail = seed_clause(seeds) if seeds else ""
+            tail = "".join(
+                unit_clause(tests[name], unit) for unit, tests in (levels or {}).items() if name in tests
+            )
             if test is not None:
                 p = test["mcnemar_p"]
                 if "rate_ci95" in test:
