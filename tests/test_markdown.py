@@ -159,3 +159,10 @@ def test_a_clean_only_run_has_no_drop_table(report):
             arm.pop(cond)
     assert "Drop from clean" in markdown(report)
     assert "Drop from clean" not in markdown(only_clean)
+
+
+def test_convergence_needs_two_checkpoints_and_names_thresholds_never_reached(report):
+    assert "| baseline | 0.00 | 0.00 | not reached | not reached |" in markdown(report)
+    for c in report["convergence"]["arms"].values():
+        c["steps"], c["rates"] = c["steps"][-1:], c["rates"][-1:]
+    assert "## Convergence" not in markdown(report)  # one checkpoint: no curve to read

@@ -254,8 +254,8 @@ def sweep() -> ExperimentConfig:
     soccer; pick-place, push), trained together with the `paper` preset's recipe (one seed); baseline,
     visuomotor gaze, cross-fitted glc (two GLCs, each trained on the other four tasks' demonstrations, 2 easy,
     1 medium and 1 hard each: no task's prior comes from a GLC that saw its gaze) and the location control; 50
-    unseen setups per task, clean. About 100 minutes on 2 cores: demos 8 x 53 ~ 6, GLC folds ~ 15, training
-    4 runs x 16,000 steps at ~0.1 s / 2 at once ~ 54, evaluation 4 x 400 episodes at <= 0.7 s ~ 19."""
+    unseen setups per task, clean. About 107 minutes on 2 cores, measured by its run (docs/results.md): demos
+    ~1.5, the two GLC folds ~25, training (4 runs, 2 at once) ~68, evaluation (4 x 400 episodes) ~12."""
     tasks = draw_tasks(SWEEP_DRAW, exclude=quick().tasks, seed=0)
     return ExperimentConfig(
         out=Path("runs/sweep"),

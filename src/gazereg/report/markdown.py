@@ -113,12 +113,19 @@ def val_loss_lines(report: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _steps(n: int | None) -> str:
+    return "not reached" if n is None else str(n)
+
+
 def convergence_lines(report: dict[str, Any]) -> list[str]:
-    """Clean success at each checkpoint, steps to the threshold and to the baseline's final success."""
+    """Clean success at each checkpoint, steps to the threshold and to the baseline's final success ("not
+    reached" when never crossed); nothing when the run evaluated only its final checkpoint (no curve)."""
     conv = report.get("convergence")
     if not conv:
         return []
     steps = next(iter(conv["arms"].values()))["steps"]
+    if len(steps) < 2:
+        return []
     lines = [
         "## Convergence (clean success at checkpoints)",
         "",
@@ -130,7 +137,7 @@ def convergence_lines(report: dict[str, Any]) -> list[str]:
         lines.append(
             f"| {a} | "
             + " | ".join(f"{r:.2f}" for r in c["rates"])
-            + f" | {c['steps_to_threshold']} | {c.get('steps_to_baseline_final')} |"
+            + f" | {_steps(c['steps_to_threshold'])} | {_steps(c.get('steps_to_baseline_final'))} |"
         )
     return [*lines, ""]
 
