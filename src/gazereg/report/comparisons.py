@@ -1,6 +1,7 @@
 """The paired comparisons of report.json as markdown tables: each arm against its reference on the same
-setups (`paired_lines`), the same comparisons with the training seed or the task as the unit (`unit_level_lines`), and the
-one row-per-comparison table writer they and the closest-approach tables share (`comparison_lines`).
+setups (`paired_lines`), the same comparisons with the training seed or the task as the unit
+(`unit_level_lines`), and the one row-per-comparison table writer they and the closest-approach tables share
+(`comparison_lines`).
 """
 
 from __future__ import annotations

@@ -309,8 +309,8 @@ def headline_lines(report: dict[str, Any]) -> list[str]:
 def results_block(report: dict[str, Any], figure: str) -> str:
     """One run's results block for docs/results.md: the headline, attention vs gaze, (for several training
     seeds, or a task-level analysis) the per-task, per-seed, paired, unit-level, distance, loss and convergence
-    tables, (otherwise, for more than two tasks or arms) the per-task table, the verdict and the attention figure at the relative path `figure`. Ends
-    with a newline."""
+    tables, (otherwise, for more than two tasks or arms) the per-task table, the verdict and the attention
+    figure at the relative path `figure`. Ends with a newline."""
     lines = [*headline_lines(report), ""]
     if report.get("alignment"):
         lines += [

@@ -254,7 +254,8 @@ def unit_clause(test: dict[str, Any], unit: Unit) -> str:
     n, units = test["n"], f"{unit}s"
     agree = "excludes 0" if lo > 0 or hi < 0 else f"includes 0: the {units} do not settle it"
     return (
-        f" {unit.capitalize()} level ({n} {units}): mean {test['mean_diff']:+.2f}, t 95% CI [{lo:+.2f}, {hi:+.2f}], "
+        f" {unit.capitalize()} level ({n} {units}): mean {test['mean_diff']:+.2f}, "
+        f"t 95% CI [{lo:+.2f}, {hi:+.2f}], "
         f"{test['above']} of {n} above 0 and {test['below']} below, sign-flip p = {test['sign_flip_p']:.2f} "
         f"(the smallest {n} {units} can give: {test['p_floor']:.2f}); the interval {agree}."
     )
