@@ -1,7 +1,8 @@
-"""`gazereg pool`: one seed per folder (and an arm added later), then one report, the same as the experiment run
-with every seed and arm."""
+"""`gazereg pool`: one seed per folder (and an arm added later), then one report, the same as the experiment
+run with every seed and arm; the same from the folders' archives (`gazereg archive`) once they are gone."""
 
 import json
+import shutil
 
 import pytest
 
@@ -80,6 +81,40 @@ def test_pooled_folders_report_what_one_run_of_every_seed_and_arm_reports(tmp_pa
         == 2
     )
     assert "one of the pooled folders" in capsys.readouterr().err
+    _pooled_archives_report_what_the_folders_do(tmp_path, ["s0", "s1", "perturbed"], pooled, capsys)
+
+
+def _pooled_archives_report_what_the_folders_do(tmp_path, folders, pooled, capsys):
+    """`gazereg archive` keeps what `pool` reads and no data: once the folders are gone (a fresh machine),
+    their archives pool into the same report."""
+    kept = [tmp_path / "kept" / f for f in folders]
+    for folder, archive in zip(folders, kept):
+        assert cli.main(["archive", str(tmp_path / folder), "--out", str(archive)]) == 0
+    files = [p for p in (tmp_path / "kept").rglob("*") if p.is_file()]
+    assert {p.suffix for p in files} == {".json", ".md", ".png", ".gz"}, sorted(map(str, files))
+    again = tmp_path / "again"  # an archive of an archive is the archive
+    assert cli.main(["archive", str(kept[0]), "--out", str(again)]) == 0
+    assert sorted(p.relative_to(again) for p in again.rglob("*")) == sorted(
+        p.relative_to(kept[0]) for p in kept[0].rglob("*")
+    )
+    shutil.copytree(again, tmp_path / "cut")
+    (tmp_path / "cut" / "stages" / "eval.json").unlink()
+    capsys.readouterr()  # refused, one line each: an unfinished folder, an archive inside its folder
+    assert cli.main(["archive", str(tmp_path / "cut"), "--out", str(tmp_path / "k2")]) == 2
+    assert "has not finished its eval stage" in capsys.readouterr().err
+    assert cli.main(["archive", str(tmp_path / "s0"), "--out", str(tmp_path / "s0" / "kept")]) == 2
+    assert "inside the run folder" in capsys.readouterr().err
+    kept[0] = again
+    for folder in folders:
+        shutil.rmtree(tmp_path / folder)
+    out = tmp_path / "pooled-kept"
+    args = ["pool", *SMALL, *ARMS, "--train-seeds", "0", "1", "--runs", *map(str, kept), "--out", str(out)]
+    assert cli.main(args) == 0
+    a, b = (json.loads((d / "report.json").read_text()) for d in (pooled, out))
+    for key in ("success", "paired", "per_seed", "distance", "verdict", "alignment", "val_loss", "demos"):
+        assert a[key] == b[key], key
+    assert (a["date"], a["wall_time_s"]) == (b["date"], b["wall_time_s"])
+    assert (out / b["figures"]["convergence"]).stat().st_size > 1000  # drawn again from the kept records
 
 
 def test_folders_with_other_demonstrations_or_another_glc_are_not_one_experiment(tmp_path):

@@ -34,6 +34,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "gazereg.experiment.pool:main",
         "one report over run folders of one experiment that differ only in their training seeds and arms",
     ),
+    "archive": (
+        "gazereg.experiment.archive:main",
+        "a finished experiment's results without its data or checkpoints, to commit; `pool` reads it",
+    ),
     "compare": (
         "gazereg.report.compare:main",
         "compare two experiment runs on the setups both evaluated (paired tests per arm and condition)",

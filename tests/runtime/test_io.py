@@ -43,3 +43,21 @@ def test_a_killed_writer_leaves_a_temporary_that_the_next_run_sweeps(tmp_path):
         assert live.exists()
     assert sorted(p.name for p in removed) == left
     assert sorted(p.name for p in tmp_path.iterdir()) == ["live.json"]
+
+
+def test_a_compressed_copy_reads_as_the_file_and_is_the_same_bytes_for_the_same_text(tmp_path):
+    from gazereg.runtime.io import gz_path, read_text, write_gz_copy
+    from gazereg.training.logger import read_metrics
+
+    src = tmp_path / "metrics.jsonl"
+    src.write_text('{"step": 1, "loss": 0.5}\n{"step": 2, "loss": 0.25}\n')
+    kept = tmp_path / "kept" / "metrics.jsonl"
+    write_gz_copy(src, gz_path(kept))
+    first = gz_path(kept).read_bytes()
+    write_gz_copy(src, gz_path(kept))
+    assert gz_path(kept).read_bytes() == first and not kept.exists()
+    assert read_text(kept) == src.read_text()
+    assert [r["step"] for r in read_metrics(kept)] == [1, 2]
+    assert read_metrics(tmp_path / "none.jsonl") == []
+    with pytest.raises(FileNotFoundError, match=r"none\.json \(or none\.json\.gz\) does not exist"):
+        read_text(tmp_path / "none.json")

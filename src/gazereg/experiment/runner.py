@@ -59,7 +59,7 @@ from gazereg.report.ids import RunId
 from gazereg.runtime.clock import ResumableClock
 from gazereg.runtime.config import check_same_config, save_config, to_dict
 from gazereg.runtime.errors import UsageError
-from gazereg.runtime.io import atomic_write_json, sweep_stale_temps
+from gazereg.runtime.io import atomic_write_json, read_text, sweep_stale_temps
 from gazereg.runtime.pool import exit_with_parent
 from gazereg.training.checkpoint import latest_checkpoint, list_checkpoints
 from gazereg.training.config import TrainConfig
@@ -69,6 +69,8 @@ log = logging.getLogger(__name__)
 
 
 STAGES = ("demos", "priors", "train", "eval", "converge", "align", "report")
+ARCHIVE_RECORD = "archive.json"
+"""what an archived run folder (`gazereg.experiment.archive`) says of its source, the results' date among it"""
 
 
 class Experiment:
@@ -324,17 +326,20 @@ class Experiment:
     def results_date(self) -> str:
         """When the results were produced: the last stage before the report finished (a rerun that only
         rewrites the report keeps that date)."""
+        archived = self.out / ARCHIVE_RECORD
+        if archived.exists():  # its files' times are when they were copied or checked out
+            return str(json.loads(archived.read_text())["date"])
         times = [self.marker(s).stat().st_mtime for s in STAGES[:-1] if self.marker(s).exists()]
         when = datetime.fromtimestamp(max(times), timezone.utc) if times else datetime.now(timezone.utc)
         return when.strftime("%Y-%m-%d %H:%M UTC")
 
     def stage_outputs(self, results: dict[str, Any]) -> StageOutputs:
         """What the finished stages produced, for the report."""
-        conv_info = results["converge"]["eval_info"]
+        converged = results["converge"]["eval_info"] is not None
         train_runs = results["train"]["runs"]
         return StageOutputs(
-            episodes=_episodes(results["eval"]["eval_info"]),
-            checkpoint_episodes=_episodes(conv_info) if conv_info else [],
+            episodes=_episodes(self.out / "eval"),
+            checkpoint_episodes=_episodes(self.out / "converge") if converged else [],
             demos=results["demos"]["train"],
             glc=results["priors"].get("glc"),
             final_metrics={RunId.parse(n): r.get("final_metrics", {}) for n, r in train_runs.items()},
@@ -350,9 +355,9 @@ class Experiment:
         return {"report": str(write_report(self.out, report))}
 
 
-def _episodes(eval_info: str) -> list[dict[str, Any]]:
-    """The evaluation records of an eval_info.json."""
-    return json.loads(Path(eval_info).read_text())["episodes"]
+def _episodes(eval_dir: Path) -> list[dict[str, Any]]:
+    """The evaluation records of an evaluation folder's eval_info.json (its compressed copy in an archive)."""
+    return json.loads(read_text(eval_dir / "eval_info.json"))["episodes"]
 
 
 def _train_one(cfg: TrainConfig) -> dict[str, Any]:

@@ -2,12 +2,14 @@
 
 A reader never sees a half-written file, and a killed job leaves either the old file or the new one (and a
 temporary `.NAME.PID.XXXX.tmp` that `sweep_stale_temps` removes once process PID is gone). Files and folders
-are created with the permissions an ordinary write would give them (0666 / 0777 less the umask), not the 0600 /
-0700 of Python's secure temporaries, so a store or checkpoint can be shared.
+are created with the permissions an ordinary write would give them (0666 / 0777 less the umask), not the
+0600 / 0700 of Python's secure temporaries, so a store or checkpoint can be shared. `read_text` also reads the
+compressed copies (NAME.gz, `write_gz_copy`) an archived run folder keeps.
 """
 
 from __future__ import annotations
 
+import gzip
 import json
 import os
 import re
@@ -119,3 +121,38 @@ def append_jsonl(path: str | Path, record: dict[str, Any]) -> None:
         f.write(json.dumps(record, sort_keys=True) + "\n")
         f.flush()
         os.fsync(f.fileno())
+
+
+def gz_path(path: str | Path) -> Path:
+    """`path`'s gzip-compressed copy: NAME.gz beside it."""
+    path = Path(path)
+    return path.with_name(path.name + ".gz")
+
+
+def read_text(path: str | Path) -> str:
+    """The text of `path`, or of its compressed copy `gz_path(path)` when only that exists (an archived run
+    folder's, `gazereg.experiment.archive`); FileNotFoundError naming both when neither does."""
+    path = Path(path)
+    if path.exists() or not gz_path(path).exists():
+        try:
+            return path.read_text()
+        except FileNotFoundError:
+            raise FileNotFoundError(f"{path} (or {gz_path(path).name}) does not exist") from None
+    with gzip.open(gz_path(path), "rt") as f:
+        return f.read()
+
+
+def exists_or_gz(path: str | Path) -> bool:
+    """`path` or its compressed copy exists (see `read_text`)."""
+    return Path(path).exists() or gz_path(path).exists()
+
+
+def write_gz_copy(src: str | Path, dst: str | Path) -> None:
+    """Write `src` compressed to `dst` (atomically; `mtime=0` so the same text gives the same bytes)."""
+    with (
+        atomic_path(dst) as tmp,
+        open(src, "rb") as f,
+        open(tmp, "wb") as raw,
+        gzip.GzipFile(filename="", fileobj=raw, mode="wb", mtime=0) as out,
+    ):
+        shutil.copyfileobj(f, out)

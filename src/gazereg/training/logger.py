@@ -13,7 +13,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from gazereg.runtime.io import append_jsonl, atomic_write_text
+from gazereg.runtime.io import append_jsonl, atomic_write_text, exists_or_gz, read_text
 
 log = logging.getLogger(__name__)
 
@@ -94,15 +94,16 @@ class MetricsFile:
 
 
 def read_metrics(path: str | Path) -> list[dict[str, Any]]:
-    """The records of a metrics.jsonl ([] when it does not exist). A last line that does not parse (a write
-    cut short by a kill) is skipped with a warning; any other bad line raises ValueError naming path:line."""
+    """The records of a metrics.jsonl, or of its compressed copy in an archived run folder ([] when neither
+    exists). A last line that does not parse (a write cut short by a kill) is skipped with a warning; any other
+    bad line raises ValueError naming path:line."""
     p = Path(path)
-    return [record for _, record in _records(p)] if p.exists() else []
+    return [record for _, record in _records(p)] if exists_or_gz(p) else []
 
 
 def _records(p: Path) -> list[tuple[str, dict[str, Any]]]:
     """(line, record) for every record line of an existing metrics file (see `read_metrics`)."""
-    lines = p.read_text().splitlines()
+    lines = read_text(p).splitlines()
     last = max((i for i, line in enumerate(lines) if line.strip()), default=-1)
     records = []
     for i, line in enumerate(lines):

@@ -1,0 +1,92 @@
+"""`gazereg archive RUN_FOLDER --out DEST`: a finished experiment's results without its data, small enough to
+commit (under docs/), so they outlive the machine they were made on: the configuration, stage records, report,
+figures, evaluation records and training metrics (these two compressed); no demonstrations, priors, GLC or
+checkpoints. `gazereg pool --runs` reads an archive as it reads the folder itself, so a preset split over
+sittings that each start on a fresh machine is still reported as one experiment:
+
+    gazereg experiment --preset paper --arms uniform other_episode --out runs/paper-abl-a   # sitting 1
+    gazereg archive runs/paper-abl-a --out docs/runs/paper-abl-a                            # commit it
+    gazereg experiment --preset paper --arms baseline gaze --out runs/paper-abl-b           # sitting 2
+    gazereg archive runs/paper-abl-b --out docs/runs/paper-abl-b
+    gazereg pool --preset paper --arms baseline gaze uniform other_episode \\
+        --runs docs/runs/paper-abl-a docs/runs/paper-abl-b --out runs/paper-abl
+
+The archive's `archive.json` names its source and the results' date (its files' own times are when they were
+copied or checked out).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+from pathlib import Path
+
+from gazereg.experiment.config import ExperimentConfig
+from gazereg.experiment.runner import ARCHIVE_RECORD, Experiment
+from gazereg.runtime.errors import UsageError
+from gazereg.runtime.io import atomic_dir, atomic_write_json, gz_path, write_gz_copy
+
+KEPT = ("config.json", "report.json", "report.md", "figures/attention.png")
+"""files kept as they are, when the folder has them (the other figures a report draws again)"""
+COMPRESSED = ("eval/eval_info.json", "converge/eval_info.json")
+"""files kept compressed (NAME.gz), with every training run's `train/RUN/metrics.jsonl`"""
+
+
+def archived_files(source: Path) -> tuple[list[Path], list[Path]]:
+    """(files kept as they are, files kept compressed), relative to `source`: see KEPT and COMPRESSED; the
+    stage records too (not the clocks of interrupted stages)."""
+    plain = [Path(name) for name in KEPT if (source / name).is_file()]
+    plain += sorted(
+        p.relative_to(source) for p in (source / "stages").glob("*.json") if ".clock." not in p.name
+    )
+    squeezed = [Path(name) for name in COMPRESSED]
+    squeezed += sorted(
+        p.parent.relative_to(source) / "metrics.jsonl" for p in (source / "train").glob("*/metrics*")
+    )
+    return plain, [
+        p for p in dict.fromkeys(squeezed) if (source / p).is_file() or gz_path(source / p).is_file()
+    ]
+
+
+def archive(source: Path, dest: Path) -> Path:
+    """Write the archive of the finished experiment in `source` to `dest` (whole or not at all; an existing
+    archive there is replaced); returns `dest`. UsageError when `source` has not finished or `dest` is in
+    it."""
+    exp = Experiment(ExperimentConfig(out=source))
+    exp.finished()  # names the first unfinished stage
+    if dest.resolve() == source.resolve() or source.resolve() in dest.resolve().parents:
+        raise UsageError(f"--out {dest} is inside the run folder {source}: choose a folder outside it")
+    plain, squeezed = archived_files(source)
+    with atomic_dir(dest) as tmp:
+        for rel in plain:
+            (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(source / rel, tmp / rel)
+        for rel in squeezed:
+            (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+            if (source / rel).is_file():
+                write_gz_copy(source / rel, gz_path(tmp / rel))
+            else:  # an archive of an archive
+                shutil.copyfile(gz_path(source / rel), gz_path(tmp / rel))
+        atomic_write_json(tmp / ARCHIVE_RECORD, {"source": str(source), "date": exp.results_date()})
+    return dest
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="gazereg archive", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("run", type=Path, help="a finished experiment's run folder")
+    parser.add_argument("--out", type=Path, required=True, help="the archive folder to write")
+    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    if not args.run.is_dir():
+        raise UsageError(f"{args.run} is not a folder")
+    dest = archive(args.run, args.out)
+    files = [p for p in dest.rglob("*") if p.is_file()]
+    size = sum(p.stat().st_size for p in files)
+    print(f"archived {args.run} into {dest}: {len(files)} files, {size / 1e3:.0f} kB")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
