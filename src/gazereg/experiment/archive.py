@@ -1,8 +1,8 @@
 """`gazereg archive RUN_FOLDER --out DEST`: a finished experiment's results without its data, small enough to
 commit (under docs/), so they outlive the machine they were made on: the configuration, stage records, report,
 attention figure, evaluation records and training metrics (these two compressed); no demonstrations, priors,
-GLC or checkpoints. `gazereg pool --runs` reads an archive as it reads the folder itself, so a preset split over
-sittings that each start on a fresh machine is still reported as one experiment:
+GLC or checkpoints. `gazereg pool --runs` reads an archive as it reads the folder itself, so a preset split
+over sittings that each start on a fresh machine is still reported as one experiment:
 
     gazereg experiment --preset paper --arms uniform other_episode --out runs/paper-abl-a   # sitting 1
     gazereg archive runs/paper-abl-a --out docs/runs/paper-abl-a                            # commit it
