@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from gazereg.report.build import ReportSpec, StageOutputs, build_report, write_report
 from gazereg.report.ids import RunId
 
@@ -68,12 +70,13 @@ def test_build_report_tallies_checkpoints_and_keys_runs_by_name(tmp_path):
     assert md.read_text().startswith("# gazereg experiment: preset `unit`")
 
 
-def test_the_location_control_is_paired_with_the_gaze_arm(tmp_path):
-    """With the location control (issue #21 item 6) the report tests gaze against it on the same setups, next to
-    every arm against the baseline."""
+@pytest.mark.parametrize("control", ["location", "uniform", "other_episode"])
+def test_each_control_is_paired_with_the_gaze_arm(tmp_path, control):
+    """With the location control (issue #21 item 6) or a gaze ablation (item 5: uniform, other-episode gaze)
+    the report tests gaze against it on the same setups, next to every arm against the baseline."""
     import dataclasses
 
-    runs = [RunId(arm, 0) for arm in ("baseline", "gaze", "location")]
+    runs = [RunId(arm, 0) for arm in ("baseline", "gaze", control)]
     final = (
         episodes(runs[0], [0, 0, 1, 0]) + episodes(runs[1], [1, 1, 0, 1]) + episodes(runs[2], [1, 0, 0, 0])
     )
@@ -89,10 +92,8 @@ def test_the_location_control_is_paired_with_the_gaze_arm(tmp_path):
         date="today",
         stage_times={},
     )
-    report = build_report(
-        dataclasses.replace(spec(), arms=("baseline", "gaze", "location")), outputs, tmp_path
-    )
-    test = report["paired"]["gaze vs location | clean"]
-    assert test["pairs"] == 4 and test["gaze_only"] == 2 and test["location_only"] == 0
-    assert "location vs baseline | clean" in report["paired"]
+    report = build_report(dataclasses.replace(spec(), arms=("baseline", "gaze", control)), outputs, tmp_path)
+    test = report["paired"][f"gaze vs {control} | clean"]
+    assert test["pairs"] == 4 and test["gaze_only"] == 2 and test[f"{control}_only"] == 0
+    assert f"{control} vs baseline | clean" in report["paired"]
     assert not any("perturbed" in name for name in report["paired"])

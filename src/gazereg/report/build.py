@@ -194,9 +194,10 @@ def _header(spec: ReportSpec, outputs: StageOutputs) -> dict[str, Any]:
     }
 
 
-GAZE_CONTROLS = ("perturbed", "location")
+GAZE_CONTROLS = ("perturbed", "location", "uniform", "other_episode")
 """the gaze arm's controls, each a reference of its own in the paired tests (every arm is also compared with
-the baseline): perturbed gaze (wrong locations), location (the same prior, supervising features, not attention)"""
+the baseline): perturbed gaze (shuffled: wrong locations), location (the same prior, supervising features, not
+attention), uniform (the term without any location), other_episode (another demonstration's gaze)"""
 
 
 def gaze_and_control(
