@@ -5,11 +5,11 @@ GLC or checkpoints. `gazereg pool --runs` reads an archive as it reads the folde
 over sittings that each start on a fresh machine is still reported as one experiment:
 
     gazereg experiment --preset paper --arms uniform other_episode --out runs/paper-abl-a   # sitting 1
-    gazereg archive runs/paper-abl-a --out docs/runs/paper-abl-a                            # commit it
-    gazereg experiment --preset paper --arms baseline gaze --out runs/paper-abl-b           # sitting 2
-    gazereg archive runs/paper-abl-b --out docs/runs/paper-abl-b
-    gazereg pool --preset paper --arms baseline gaze uniform other_episode \\
-        --runs docs/runs/paper-abl-a docs/runs/paper-abl-b --out runs/paper-abl
+    gazereg archive runs/paper-abl-a --out docs/records/paper-abl-a                         # commit it
+    gazereg experiment --preset paper --arms baseline --out runs/paper-abl-b                # sitting 2
+    gazereg archive runs/paper-abl-b --out docs/records/paper-abl-b
+    gazereg pool --preset paper --arms baseline uniform other_episode \\
+        --runs docs/records/paper-abl-a docs/records/paper-abl-b --out runs/paper-abl
 
 The archive's `archive.json` names its source and the results' date (its files' own times are when they were
 copied or checked out).
