@@ -56,8 +56,8 @@ def agreement(store: EpisodeStore, reference: str, prior: str, geometry: PatchGe
         parts["peak"].append(peak_distance(ref, other, grid))
     out = {k: float(torch.cat(v).mean()) for k, v in parts.items()}  # NaN peak: a flat prior has none
     peaks = torch.cat(parts["peak"])
-    return {**out, "same_peak": float((peaks == 0).float().mean()) if not peaks.isnan().any() else float("nan"),
-            "frames": int(peaks.numel())}  # fmt: skip
+    same = float("nan") if peaks.isnan().any() else float((peaks == 0).float().mean())
+    return {**out, "same_peak": same, "frames": int(peaks.numel())}
 
 
 def _num(x: float) -> str:
@@ -65,17 +65,17 @@ def _num(x: float) -> str:
 
 
 def table(store: Path, reference: str, rows: dict[str, dict[str, float]], geometry: PatchGeometry) -> str:
+    (h, w), px = geometry.grid_hw, geometry.patch_size
     lines = [
-        f"## Gaze priors against `{reference}` on {store} ({geometry.grid_hw[0]}x{geometry.grid_hw[1]} patches of "
-        f"{geometry.patch_size} px at {geometry.input_hw[0]} px)",
+        f"## Gaze priors against `{reference}` on {store} ({h}x{w} patches of {px} px at {geometry.input_hw[0]} px)",
         "",
         "| prior | frames | KL (nats) | CC | SIM | peak distance (patches) | same peak patch |",
         "|---|---|---|---|---|---|---|",
     ]
     for name, r in rows.items():
         lines.append(
-            f"| {name} | {r['frames']} | {r['kl']:.3f} | {r['cc']:.3f} | {r['sim']:.3f} | {_num(r['peak'])} | "
-            f"{_num(r['same_peak'])} |"
+            f"| {name} | {r['frames']} | {r['kl']:.3f} | {r['cc']:.3f} | {r['sim']:.3f} | "
+            f"{_num(r['peak'])} | {_num(r['same_peak'])} |"
         )
     return "\n".join(lines) + "\n"
 
