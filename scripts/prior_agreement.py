@@ -65,9 +65,9 @@ def _num(x: float) -> str:
 
 
 def table(store: Path, reference: str, rows: dict[str, dict[str, float]], geometry: PatchGeometry) -> str:
-    (h, w), px = geometry.grid_hw, geometry.patch_size
+    (h, w), px, size = geometry.grid_hw, geometry.patch_size, geometry.input_hw[0]
     lines = [
-        f"## Gaze priors against `{reference}` on {store} ({h}x{w} patches of {px} px at {geometry.input_hw[0]} px)",
+        f"## Gaze priors against `{reference}` on {store} ({h}x{w} patches of {px} px at {size} px)",
         "",
         "| prior | frames | KL (nats) | CC | SIM | peak distance (patches) | same peak patch |",
         "|---|---|---|---|---|---|---|",
