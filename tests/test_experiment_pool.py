@@ -60,7 +60,8 @@ def test_pooled_folders_report_what_one_run_of_every_seed_and_arm_reports(tmp_pa
     )
     from gazereg.report import results_block
 
-    assert f"(`gazereg pool --preset smoke --runs {' '.join(runs[1:])}`)" in results_block(a, "x.png")
+    command = f"gazereg pool --preset smoke {' '.join(ARMS)} --train-seeds 0 1 --runs {' '.join(runs[1:])}"
+    assert f"(`{command}`)" in results_block(a, "x.png")  # the command that pools them again
 
     capsys.readouterr()  # refused, one line each: a run missing, runs twice, an arm not asked, another config
     seeds3 = [*ARMS, "--train-seeds", "0", "1", "2"]

@@ -294,7 +294,10 @@ def headline_lines(report: dict[str, Any]) -> list[str]:
     )
     wall = f"wall time {report['wall_time_s'] / 60:.1f} min"
     if report.get("pooled_from"):  # one seed per folder (gazereg.experiment.pool)
-        command = f"gazereg pool --preset {report['preset']} --runs {' '.join(report['pooled_from'])}"
+        command = (
+            f"gazereg pool --preset {report['preset']} --arms {' '.join(tr['arms'])} "
+            f"--train-seeds {' '.join(map(str, tr['seeds']))} --runs {' '.join(report['pooled_from'])}"
+        )
         wall += f" summed over {len(report['pooled_from'])} runs"
     return [
         f"Latest `{report['preset']}` run: {report['date']}, {report['machine']['summary']}, {wall} "
