@@ -13,3 +13,25 @@ torch.set_num_threads(1)
 @pytest.fixture
 def rng():
     return torch.Generator().manual_seed(0)
+
+
+@pytest.fixture(scope="session")
+def finished_experiment(tmp_path_factory):
+    """A finished smoke experiment folder (baseline and gaze, one seed, 3 clean setups per task), shared by
+    the tests of the scripts that read one; they write only into new subfolders of it or elsewhere."""
+    from gazereg import cli
+
+    out = tmp_path_factory.mktemp("finished") / "exp"
+    args = [
+        "--preset",
+        "smoke",
+        "--arms",
+        "baseline",
+        "gaze",
+        "--eval.conditions",
+        "clean",
+        "--parallel",
+        "1",
+    ]
+    assert cli.main(["experiment", *args, "--eval.episodes", "3", "--out", str(out)]) == 0
+    return out

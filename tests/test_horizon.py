@@ -8,30 +8,14 @@ from pathlib import Path
 
 import pytest
 
-from gazereg import cli
-
 pytestmark = pytest.mark.sim
 
 SCRIPT = Path(__file__).parents[1] / "scripts" / "horizon.py"
 
 
-def test_horizon_counts_successes_within_both_limits_and_reproduces_the_short_one(tmp_path):
-    out = tmp_path / "exp"
-    small = [
-        "--preset",
-        "smoke",
-        "--arms",
-        "baseline",
-        "gaze",
-        "--eval.conditions",
-        "clean",
-        "--parallel",
-        "1",
-    ]
-    assert cli.main(["experiment", *small, "--eval.episodes", "3", "--out", str(out)]) == 0
-    subprocess.run(
-        [sys.executable, str(SCRIPT), str(out), "--max-steps", "40"], check=True, cwd=tmp_path.parent
-    )
+def test_horizon_counts_successes_within_both_limits_and_reproduces_the_short_one(finished_experiment):
+    out = finished_experiment
+    subprocess.run([sys.executable, str(SCRIPT), str(out), "--max-steps", "40"], check=True, cwd=out.parent)
     result = json.loads((out / "horizon40" / "horizon.json").read_text())
     report = json.loads((out / "report.json").read_text())
     assert result["short_steps"] == 15 and set(result["arms"]) == {"baseline", "gaze"}

@@ -9,7 +9,6 @@ from pathlib import Path
 
 import pytest
 
-from gazereg import cli
 from gazereg.runtime.errors import UsageError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -84,31 +83,21 @@ def test_comparisons_pair_each_arm_with_the_baseline_and_the_gaze_arm_with_its_c
 
 
 @pytest.mark.sim
-def test_the_sweep_rolls_out_the_new_condition_and_reads_clean_from_the_experiment(tmp_path):
-    out = tmp_path / "exp"
-    small = [
-        "--preset",
-        "smoke",
-        "--arms",
-        "baseline",
-        "gaze",
-        "--eval.conditions",
-        "clean",
-        "--parallel",
-        "1",
-    ]
-    assert cli.main(["experiment", *small, "--eval.episodes", "2", "--out", str(out)]) == 0
+def test_the_sweep_rolls_out_the_new_condition_and_reads_clean_from_the_experiment(
+    finished_experiment, tmp_path
+):
+    out = finished_experiment
     sweep = tmp_path / "sweep"
     args = [sys.executable, str(SCRIPT), str(out), "--conditions", "clean", "dim:0.7", "--out", str(sweep)]
-    subprocess.run(args, check=True, cwd=tmp_path.parent, capture_output=True)
+    subprocess.run(args, check=True, cwd=out.parent, capture_output=True)
     result = json.loads((sweep / "robustness.json").read_text())
     report = json.loads((out / "report.json").read_text())
     assert result["rolled_out"] == ["dim:0.7"] and list(result["success"]) == ["baseline", "gaze"]
     for arm in ("baseline", "gaze"):
         assert result["success"][arm]["clean"] == report["success"][arm]["clean"]
-        assert result["success"][arm]["dim:0.7"]["n"] == 2
+        assert result["success"][arm]["dim:0.7"]["n"] == 3
     rolled = json.loads((sweep / "eval" / "eval_info.json").read_text())["episodes"]
-    assert {r["condition"] for r in rolled} == {"dim:0.7"} and len(rolled) == 4
+    assert {r["condition"] for r in rolled} == {"dim:0.7"} and len(rolled) == 6
     assert "| dim:0.7 | " in (sweep / "robustness.md").read_text()
     bad = subprocess.run(
         [*args[:3], "--conditions", "dim:0.7", "--out", str(sweep)], capture_output=True, text=True
