@@ -4,9 +4,11 @@ Renders the experiment's held-out setups again under `--condition` (the same exp
 or the sensor differs), then for every final checkpoint compares its attention on the clean and the
 perturbed frames: attention mass on the task object (next to chance) for each, the agreement of the two
 maps, and the action loss against the expert's actions on each (the same flow noise on both), which shows
-whether what the policy reads changes where it looks does not. Writes RUN/attention-<condition>.json and .md.
+whether what the policy reads changes where it looks does not. Writes RUN/attention-<condition>.json and .md,
+or with several folders (each renders its own held-out setups) one table of all their runs to --out.
 
 python scripts/attention_under_perturbation.py runs/paper8k --condition dim:0.7
+python scripts/attention_under_perturbation.py runs/a runs/b --condition tint:1 --out runs/attention-tint.md
 """
 
 import argparse
@@ -80,9 +82,9 @@ def action_loss(policy: Any, store: EpisodeStore, episodes: list[int], batch_siz
     return total / len(ds)
 
 
-def markdown(run: Path, condition: str, rows: dict[str, dict[str, Any]]) -> str:
+def markdown(runs: str, condition: str, rows: dict[str, dict[str, Any]]) -> str:
     lines = [
-        f"## Attention under {condition}: {run}",
+        f"## Attention under {condition}: {runs}",
         "",
         "Same held-out frames rendered clean and perturbed. Object mass: attention on the task object's patches "
         "(chance: the region's share of patches). Agreement: CC and KL(clean || perturbed) of the two maps. "
@@ -101,19 +103,20 @@ def markdown(run: Path, condition: str, rows: dict[str, dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("run_dir", type=Path, help="a finished `gazereg experiment` folder")
-    ap.add_argument("--condition", default="dim:0.7", help="a perturbation spec, as in `gazereg eval`")
-    args = ap.parse_args()
-    run = args.run_dir
+def checkpoints(run: Path) -> dict[str, str]:
+    """{run id: final checkpoint} of a finished experiment folder."""
     if not (run / "stages" / "train.json").exists():
         raise SystemExit(f"{run}: no finished train stage (stages/train.json)")
-    cfg = json.loads((run / "config.json").read_text())
-    ckpts = {
+    return {
         n: r["checkpoint"] for n, r in json.loads((run / "stages" / "train.json").read_text())["runs"].items()
     }
-    stores = EpisodeStore(run / "heldout"), EpisodeStore(render_heldout(run, args.condition))
+
+
+def analyse(run: Path, condition: str) -> tuple[list[int], dict[str, dict[str, Any]]]:
+    """(the held-out episodes compared, {run id: attention shift and action losses}) for `run`'s final
+    checkpoints under `condition`."""
+    cfg, ckpts = json.loads((run / "config.json").read_text()), checkpoints(run)
+    stores = EpisodeStore(run / "heldout"), EpisodeStore(render_heldout(run, condition))
     episodes = same_trajectories(*stores)
     layers = cfg["train"]["gaze"]["layers"]
     rows = {}
@@ -125,10 +128,32 @@ def main() -> None:
             zip(("clean", "perturbed"), (action_loss(policy, s, episodes) for s in stores))
         )
         print(name, rows[name]["agreement"], rows[name]["action_loss"], flush=True)
-    stem = f"attention-{slug(args.condition)}"
-    atomic_write_json(run / f"{stem}.json", {"condition": args.condition, "episodes": episodes, "runs": rows})
-    text = markdown(run, args.condition, rows)
-    atomic_write_text(run / f"{stem}.md", text)
+    return episodes, rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("run_dirs", type=Path, nargs="+", help="finished `gazereg experiment` folders")
+    ap.add_argument("--condition", default="dim:0.7", help="a perturbation spec, as in `gazereg eval`")
+    ap.add_argument(
+        "--out", type=Path, help="the markdown (JSON beside it); default RUN/attention-<condition>.md"
+    )
+    args = ap.parse_args()
+    if args.out is None and len(args.run_dirs) > 1:
+        raise SystemExit("several run folders need --out (where the one table goes)")
+    out = args.out or args.run_dirs[0] / f"attention-{slug(args.condition)}.md"
+    names = [n for run in args.run_dirs for n in checkpoints(run)]
+    if len(set(names)) < len(names):
+        raise SystemExit(f"a run id is in more than one folder: {sorted(names)}")
+    episodes, rows = {}, {}
+    for run in args.run_dirs:
+        episodes[str(run)], found = analyse(run, args.condition)
+        rows.update(found)
+    atomic_write_json(
+        out.with_suffix(".json"), {"condition": args.condition, "episodes": episodes, "runs": rows}
+    )
+    text = markdown(", ".join(map(str, args.run_dirs)), args.condition, rows)
+    atomic_write_text(out, text)
     print(text)
 
 

@@ -60,6 +60,10 @@ def test_smoke_experiment_end_to_end_and_resume(tmp_path, capsys):
     assert 0 < shift["runs"]["gaze@s0"]["perturbed"]["frames"] == shift["runs"]["gaze@s0"]["clean"]["frames"]
     assert all(v > 0 for v in shift["runs"]["gaze@s0"]["action_loss"].values())
     assert (out / "attention-dim_0.7.md").read_text().startswith("## Attention under dim:0.7")
+    # several folders: one --out for their table, and each run id in one folder only
+    for extra, message in (([], b"need --out"), (["--out", str(out / "both.md")], b"more than one folder")):
+        bad = subprocess.run([sys.executable, str(script), str(out), str(out), *extra], capture_output=True)
+        assert bad.returncode != 0 and message in bad.stderr
     markers = {s: (out / "stages" / f"{s}.json").stat().st_mtime_ns for s in STAGES}
     capsys.readouterr()
     assert main(["--preset", "smoke", "--out", str(out)]) == 0  # rerun: finished stages are skipped
