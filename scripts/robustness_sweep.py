@@ -23,9 +23,18 @@ from typing import Any
 
 from gazereg.evaluation.config import ROBUSTNESS_CONDITIONS, EvalConfig
 from gazereg.evaluation.rollout import evaluate
-from gazereg.report.build import GAZE_CONTROLS
+from gazereg.report.build import GAZE_CONTROLS, gaze_and_control
+from gazereg.report.comparisons import rate_difference
 from gazereg.report.markdown import drop_lines, success_table_lines
-from gazereg.report.tables import machine_summary, paired_tests, run_of, success_table, unit_level_tests
+from gazereg.report.tables import (
+    machine_summary,
+    paired_name,
+    paired_tests,
+    run_of,
+    split_paired_name,
+    success_table,
+    unit_level_tests,
+)
 from gazereg.runtime.errors import UsageError, report_errors
 from gazereg.runtime.io import atomic_write_json, atomic_write_text, read_text
 
@@ -71,9 +80,11 @@ def comparisons(records: list[dict[str, Any]]) -> tuple[dict[str, dict], dict[st
     """(pooled paired tests, seed-level tests): each arm against the baseline, and the gaze arm against each
     of its controls present, per condition."""
     paired, seeds = paired_tests(records), unit_level_tests(records, "seed")
-    arms = {run_of(e).arm for e in records}
-    for control in (c for c in GAZE_CONTROLS if {"gaze", c} <= arms):
-        pair = [e for e in records if run_of(e).arm in ("gaze", control)]
+    arms = tuple({run_of(e).arm for e in records})
+    for control in GAZE_CONTROLS:
+        pair = gaze_and_control(records, arms, control)
+        if not pair:
+            continue
         paired.update(paired_tests(pair, control))
         seeds.update(unit_level_tests(pair, "seed", control))
     return paired, seeds
@@ -82,18 +93,18 @@ def comparisons(records: list[dict[str, Any]]) -> tuple[dict[str, dict], dict[st
 def difference_lines(result: dict[str, Any]) -> list[str]:
     """One row per condition, one column per comparison: `diff [CI], p, seeds above/below 0`."""
     conds, paired, seeds = result["conditions"], result["paired"], result["seed_level"]
-    names = list(dict.fromkeys(k.split(" | ")[0] for k in paired))
-    lines = ["| condition | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+    pairs = list(dict.fromkeys(split_paired_name(k)[:2] for k in paired))  # (arm, reference)
+    header = " | ".join(f"{a} vs {b}" for a, b in pairs)
+    lines = [f"| condition | {header} |", "|---|" + "---|" * len(pairs)]
     for c in conds:
         cells = []
-        for name in names:
-            t, s = paired.get(f"{name} | {c}"), seeds.get(f"{name} | {c}")
+        for a, b in pairs:
+            t, s = paired.get(paired_name(a, b, c)), seeds.get(paired_name(a, b, c))
             if t is None:
                 cells.append("-")
                 continue
-            lo, hi = t["rate_ci95"]
             above = f", seeds {s['above']}/{s['below']}" if s else ""
-            cells.append(f"{t['rate_diff']:+.2f} [{lo:+.2f}, {hi:+.2f}], p {t['mcnemar_p']:.2g}{above}")
+            cells.append(f"{rate_difference(t)}, p {t['mcnemar_p']:.2g}{above}")
         lines.append(f"| {c} | " + " | ".join(cells) + " |")
     return lines
 
@@ -176,8 +187,9 @@ def main(argv: list[str] | None = None) -> int:
         "wall_s": round(time.perf_counter() - started, 1),
     }
     atomic_write_json(args.out / "robustness.json", result)
-    atomic_write_text(args.out / "robustness.md", markdown(result))
-    print(markdown(result))
+    text = markdown(result)
+    atomic_write_text(args.out / "robustness.md", text)
+    print(text)
     return 0
 
 
