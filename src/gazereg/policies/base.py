@@ -40,13 +40,12 @@ from typing import Any, ClassVar, Protocol, TypeVar
 
 import numpy as np
 import torch
-from safetensors.torch import load_file, save_file
 from torch import Tensor, nn
 
 from gazereg.attention.probe import ProbeSpec
 from gazereg.data.dataset import StoreInfo
 from gazereg.patches import PatchGeometry
-from gazereg.runtime.io import atomic_dir
+from gazereg.runtime.io import atomic_dir, load_safetensors, save_safetensors
 
 MODEL_FILE, CONFIG_FILE, TOKENIZER_FILE = "model.safetensors", "config.json", "tokenizer.json"
 
@@ -240,10 +239,11 @@ class Policy(nn.Module, ABC):
 
     def write_pretrained(self, directory: str | Path, state_dict: Mapping[str, Tensor] | None = None) -> None:
         """Write model.safetensors (`state_dict`, default the policy's own), config.json and tokenizer.json
-        into an existing folder (not atomic: `save_pretrained` and training checkpoints wrap it)."""
+        into an existing folder (the folder not atomic: `save_pretrained` and training checkpoints wrap it); equal
+        weights give byte-identical files, with the mode an ordinary write gives."""
         d = Path(directory)
         sd = {k: v.detach().contiguous().cpu() for k, v in (state_dict or self.state_dict()).items()}
-        save_file(sd, str(d / MODEL_FILE), metadata={"format": "pt", "policy": self.name})
+        save_safetensors(sd, d / MODEL_FILE, metadata={"format": "pt", "policy": self.name})
         (d / CONFIG_FILE).write_text(
             json.dumps({"type": self.name, **self.config.to_dict()}, indent=2, sort_keys=True) + "\n"
         )
@@ -257,7 +257,8 @@ class Policy(nn.Module, ABC):
 
     @classmethod
     def from_pretrained(cls: type[P], directory: str | Path, map_location: str | torch.device = "cpu") -> P:
-        """The policy saved in `directory`, on `map_location`, in eval mode."""
+        """The policy saved in `directory`, on `map_location`, in eval mode; a damaged weights file is a
+        `DamagedFile` (one line naming it)."""
         d = Path(directory)
         for f in (MODEL_FILE, CONFIG_FILE, TOKENIZER_FILE):
             if not (d / f).exists():
@@ -266,5 +267,5 @@ class Policy(nn.Module, ABC):
         if cfg_dict.get("type") != cls.config_class.type:
             raise ValueError(f"{d} holds a {cfg_dict.get('type')!r} policy, not {cls.config_class.type!r}")
         policy = cls(cls.config_class.from_dict(cfg_dict), cls.load_tokenizer(d / TOKENIZER_FILE))
-        policy.load_state_dict(load_file(str(d / MODEL_FILE), device=str(map_location)))
+        policy.load_state_dict(load_safetensors(d / MODEL_FILE, device=str(map_location)))
         return policy.to(map_location).eval()

@@ -13,7 +13,10 @@
                                                         location control's head (gazereg.training.location)
 
 The whole step folder is written under a temporary name and renamed, so a checkpoint exists completely or
-not at all; `latest_checkpoint` therefore never returns a half-written one. A checkpoint damaged afterwards (a
+not at all; `latest_checkpoint` therefore never returns a half-written one. Its files get the mode an ordinary
+write gives (0666 / 0777 less the umask) and equal states give byte-identical files (sorted safetensors
+headers, `gazereg.runtime.io.save_safetensors`). A full disk while saving raises `CheckpointNotSaved`, one line
+naming the folder, with the previous checkpoints untouched. A checkpoint damaged afterwards (a
 truncated copy, a full disk) raises `DamagedCheckpoint` naming the file when read (`read_checkpoint` reads every
 file before anything is restored); `read_resumable` then falls back to the previous readable checkpoint with
 a logged warning.
@@ -35,12 +38,11 @@ from typing import Any, TypeVar
 import numpy as np
 import torch
 from safetensors import SafetensorError
-from safetensors.torch import load_file, save_file
 from torch import Tensor
 
 from gazereg.policies import Policy
 from gazereg.policies.base import CONFIG_FILE
-from gazereg.runtime.io import atomic_dir
+from gazereg.runtime.io import DamagedFile, atomic_dir, disk_full, load_safetensors, save_safetensors
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +53,11 @@ T = TypeVar("T")
 
 class DamagedCheckpoint(ValueError):
     """A file of a checkpoint cannot be read (truncated, corrupted or missing); the message names it."""
+
+
+class CheckpointNotSaved(OSError):
+    """A checkpoint could not be written (its disk is full); the message names the folder and says that the
+    previous checkpoints are kept."""
 
 
 def checkpoint_dir(run_dir: str | Path, step: int) -> Path:
@@ -137,12 +144,12 @@ def join_state(tensors: Mapping[str, Tensor], structure: Any) -> Any:
 
 def save_tensors_json(directory: Path, name: str, sd: Mapping[str, Any]) -> None:
     tensors, structure = split_state(sd)
-    save_file(tensors, str(directory / f"{name}.safetensors"))
+    save_safetensors(tensors, directory / f"{name}.safetensors")
     (directory / f"{name}.json").write_text(json.dumps(structure) + "\n")
 
 
 def load_tensors_json(directory: Path, name: str, device: str = "cpu") -> Any:
-    tensors = load_file(str(directory / f"{name}.safetensors"), device=device)
+    tensors = load_safetensors(directory / f"{name}.safetensors", device=device)
     return join_state(tensors, json.loads((directory / f"{name}.json").read_text()))
 
 
@@ -192,26 +199,49 @@ def save_checkpoint(
     files); `eval_state_dict` (EMA weights) goes into model.safetensors instead when given; `aux` maps names
     to the state dicts of training-only modules (training_state/aux_NAME.safetensors)."""
     path = checkpoint_dir(run_dir, step)
+    try:
+        _write_checkpoint(path, step, policy, optimizer, scheduler, state, eval_state_dict, aux)
+    except (OSError, SafetensorError) as e:
+        if not disk_full(e):
+            raise
+        kept = [p.name for _, p in list_checkpoints(run_dir)]
+        previous = f"the previous checkpoint ({kept[-1]}) is kept" if kept else "no checkpoint was written"
+        raise CheckpointNotSaved(
+            f"no space left on {path.parent} while saving checkpoint {path.name}; {previous}. Free space and "
+            "resume with --resume"
+        ) from e
+    return path
+
+
+def _write_checkpoint(
+    path: Path,
+    step: int,
+    policy: Policy,
+    optimizer: torch.optim.Optimizer,
+    scheduler: Any,
+    state: Mapping[str, Any],
+    eval_state_dict: Mapping[str, Tensor] | None,
+    aux: Mapping[str, Mapping[str, Tensor]] | None,
+) -> None:
     with atomic_dir(path) as tmp:
         policy.write_pretrained(tmp, eval_state_dict)
         ts = tmp / STATE_DIR
         ts.mkdir()
         if eval_state_dict is not None:
-            save_file(
+            save_safetensors(
                 {k: v.detach().cpu().contiguous() for k, v in policy.state_dict().items()},
-                str(ts / "model_raw.safetensors"),
+                ts / "model_raw.safetensors",
             )
         save_tensors_json(ts, "optimizer", optimizer.state_dict())
         sched = {k: v for k, v in scheduler.state_dict().items() if k != "lr_lambdas"}
-        (ts / "scheduler.json").write_text(json.dumps(_jsonable(sched)) + "\n")
+        (ts / "scheduler.json").write_text(json.dumps(_jsonable(sched), sort_keys=True) + "\n")
         save_tensors_json(ts, "rng", rng_state())
         for name, sd in (aux or {}).items():
             tensors = {k: v.detach().cpu().contiguous() for k, v in sd.items()}
-            save_file(tensors, str(ts / f"aux_{name}.safetensors"))
+            save_safetensors(tensors, ts / f"aux_{name}.safetensors")
         (ts / "state.json").write_text(
             json.dumps(_jsonable({**state, "step": step}), indent=2, sort_keys=True) + "\n"
         )
-    return path
 
 
 @dataclass
@@ -238,6 +268,9 @@ def _read(file: Path, reader: Callable[[Path], T]) -> T:
     """reader(file), with any failure to read it raised as DamagedCheckpoint naming the file."""
     try:
         return reader(file)
+    except DamagedFile as e:  # a safetensors file: the message says what is wrong with it
+        what = str(e).removeprefix(f"{file} ")
+        raise DamagedCheckpoint(f"checkpoint file {file} cannot be read: it {what}") from e
     except (OSError, ValueError, KeyError, TypeError, SafetensorError) as e:
         raise DamagedCheckpoint(f"checkpoint file {file} cannot be read ({type(e).__name__}: {e})") from e
 
@@ -247,7 +280,9 @@ def _read_json(file: Path) -> Any:
 
 
 def _read_tensors(file: Path) -> dict[str, Tensor]:
-    return load_file(str(file))
+    return load_safetensors(
+        file, advice="re-save or retrain (--resume falls back to the previous checkpoint)"
+    )
 
 
 def _read_split(directory: Path, name: str) -> Any:
