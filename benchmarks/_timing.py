@@ -8,12 +8,18 @@ import platform
 import statistics
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import torch
 
-from gazereg.runtime.hardware import BF16_CPU_FLAGS, cpu_flags, native_bf16
+from gazereg.runtime.hardware import (
+    BF16_CPU_FLAGS,
+    NumericsKey,
+    auto_precision,
+    cpu_flags,
+    cpu_identity,
+    native_bf16,
+)
 
 
 def run_times(fn: Callable[[], object], repeat: int, warmup: int = 1) -> list[float]:
@@ -33,21 +39,27 @@ def median_time(fn: Callable[[], object], repeat: int, warmup: int = 1) -> float
     return statistics.median(run_times(fn, repeat, warmup))
 
 
-def machine_info(**extra: Any) -> dict[str, Any]:
-    """Platform, CPU model, cores this process may use, torch and its threads, the bf16 CPU flags, the load
-    average now (other jobs slow a benchmark down), and `extra`."""
-    info = Path("/proc/cpuinfo")
-    lines = info.read_text().splitlines() if info.exists() else []
-    models = [ln.split(":", 1)[1].strip() for ln in lines if ln.startswith("model name")]
+def machine_info(precision: str | None = None, **extra: Any) -> dict[str, Any]:
+    """Platform, CPU vendor and model, cores this process may use, torch and its threads, torch's CPU
+    capability (the kernels it dispatches to: "AVX2", "AVX512", ...), the bf16 CPU flags, the precision the
+    benchmark trains or infers in (`precision`, resolved: "no" = float32, "bf16"; default: what
+    `--train.mixed_precision auto` resolves to here) and the resulting `NumericsKey`, the load average now
+    (other jobs slow a benchmark down), and `extra`."""
+    resolved = precision if precision is not None else auto_precision("cpu")
+    vendor, model = cpu_identity()
     return {
         "platform": platform.platform(),
         "processor": platform.processor() or platform.machine(),
-        "cpu_model": models[0] if models else None,
+        "cpu_vendor": vendor,
+        "cpu_model": model,
         "cores": len(os.sched_getaffinity(0)),
         "torch": torch.__version__,
         "torch_threads": torch.get_num_threads(),
+        "cpu_capability": torch.backends.cpu.get_cpu_capability(),
         "cpu_flags": {f: f in cpu_flags() for f in sorted(BF16_CPU_FLAGS)},
         "native_bf16_cpu": native_bf16("cpu"),
+        "resolved_precision": resolved,
+        "numerics": NumericsKey.here(resolved).to_dict(),
         "load_avg_before": [round(x, 2) for x in os.getloadavg()],
         **extra,
     }

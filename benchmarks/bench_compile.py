@@ -62,9 +62,7 @@ def main() -> int:
     steps, rounds = args.steps or (3 if args.quick else 12), args.rounds or (1 if args.quick else 3)
     torch.set_num_threads(args.threads)
     out: dict = {
-        "machine": machine_info(
-            resolved_precision=TRAIN_CFG.mixed_precision, note="shared CPU: timings are noisy"
-        ),
+        "machine": machine_info(precision=TRAIN_CFG.mixed_precision, note="shared CPU: timings are noisy"),
         "batch": args.batch,
         "torch_compile": {"backend": "inductor", "mode": "default"},
     }

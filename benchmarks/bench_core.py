@@ -9,10 +9,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 
 import torch
-from _timing import median_time
+from _timing import machine_info, median_time
 from torch import nn
 
 from gazereg import (
@@ -80,11 +79,7 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     out = {
-        "machine": {
-            "cpu": platform.processor() or platform.machine(),
-            "threads": args.threads,
-            "torch": torch.__version__,
-        },
+        "machine": machine_info(precision="no", threads=args.threads),  # float32 throughout
         "prior_maths": prior_maths(),
         "probe_on_nn_transformer": probe_cost(),
     }

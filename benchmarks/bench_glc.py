@@ -14,10 +14,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 
 import torch
-from _timing import median_time
+from _timing import machine_info, median_time
 from torch.utils.flop_counter import FlopCounterMode, sdpa_flop_count
 
 from gazereg.gaze.glc import GLC, GLCConfig
@@ -97,14 +96,9 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     peak = matmul_peak_gflops()
     results = {
-        "machine": {
-            "platform": platform.platform(),
-            "processor": platform.processor() or platform.machine(),
-            "cpu_count": os.cpu_count(),
-            "torch": torch.__version__,
-            "threads": torch.get_num_threads(),
-            "matmul_peak_gflops_s": round(peak, 2),
-        },
+        "machine": machine_info(
+            precision="no", cpu_count=os.cpu_count(), matmul_peak_gflops_s=round(peak, 2)
+        ),  # float32 forward and training steps
         "forward": [],
     }
     if not args.skip_full:

@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 import torch
+from _timing import machine_info
 
 from gazereg.gaze.aggregation import AggregationConfig, aggregate
 from gazereg.gaze.glc.data import synthetic_gaze_episode
@@ -98,6 +99,7 @@ def main() -> None:
         results.append(bench("full", "average", args.frames_full, max(1, args.repeat - 1)))
     out = {
         "benchmark": "glc_priors",
+        "machine": machine_info(precision="no"),  # float32 GLC inference
         "torch": torch.__version__,
         "threads": torch.get_num_threads(),
         "cpu": platform.processor() or platform.machine(),

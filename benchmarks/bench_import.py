@@ -24,7 +24,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from _timing import run_times
+from _timing import machine_info, run_times
 
 from gazereg.data.formats.hdf5 import Hdf5ImportConfig, import_hdf5
 from gazereg.data.formats.lerobot_v3 import LeRobotImportConfig, LeRobotV3Dataset, import_lerobot
@@ -194,12 +194,7 @@ def main() -> int:
     ap.add_argument("--size", type=int, default=128)
     args = ap.parse_args()
     out: dict[str, object] = {
-        "machine": {
-            "node": platform.node(),
-            "processor": platform.processor() or platform.machine(),
-            "cpus": os.cpu_count(),
-            "python": platform.python_version(),
-        },
+        "machine": machine_info(node=platform.node(), cpus=os.cpu_count(), python=platform.python_version()),
     }
     work = Path(tempfile.mkdtemp(prefix="bench_import_src_"))
     try:

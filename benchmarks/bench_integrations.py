@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 import torch
+from _timing import machine_info
 
 from gazereg.integrations.transformers import GazeRegularizer
 
@@ -95,14 +96,13 @@ def main() -> int:
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     out = {
-        "machine": {
-            "host": platform.node(),
-            "cpu_count": os.cpu_count(),
-            "torch_threads": torch.get_num_threads(),
-            "load_avg_1m_start": os.getloadavg()[0],
-            "python": sys.version.split()[0],
-            "torch": torch.__version__,
-        },
+        "machine": machine_info(
+            precision="no",  # float32 throughout
+            host=platform.node(),
+            cpu_count=os.cpu_count(),
+            load_avg_1m_start=os.getloadavg()[0],
+            python=sys.version.split()[0],
+        ),
         "steps": args.steps,
     }
     import transformers

@@ -25,6 +25,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from _timing import machine_info
+
 DEFAULT_FIXTURE = Path(os.environ.get("GAZEREG_FIXTURES", "/work/shared/fixtures")) / "lerobot_v3_tiny"
 GAZE_CAMERA = "observation.images.front"
 
@@ -138,7 +140,7 @@ def main() -> int:
         "step_s_plain_all": [round(t, 5) for t in times["plain"]],
         "step_s_gaze_all": [round(t, 5) for t in times["gaze"]],
         "python": platform.python_version(),
-        "machine": f"{platform.node()} {platform.machine()} ({os.cpu_count()} cpus)",
+        "machine": machine_info(precision="no", node=platform.node()),  # float32 training steps
     }
     print(json.dumps(out))
     return 0

@@ -19,6 +19,8 @@ import os
 import sys
 import time
 
+from _timing import machine_info
+
 
 def run(
     suite: str, steps: int, cameras: tuple[str, ...], size: int, mesh_cell: object = "auto"
@@ -131,6 +133,7 @@ def main() -> int:
 
     out = {
         "benchmark": "libero",
+        "machine": machine_info(),
         "suite": args.suite,
         "steps": args.steps,
         "image_size": args.size,

@@ -16,10 +16,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import tempfile
 import time
 from pathlib import Path
+
+from _timing import machine_info
 
 
 def env_steps_per_s(task: str, steps: int, gl_backend: str, **env_kwargs) -> dict[str, float]:
@@ -141,12 +142,7 @@ def main() -> int:
 
     backend = select_gl_backend()
     result: dict = {
-        "machine": {
-            "platform": platform.platform(),
-            "processor": platform.processor() or platform.machine(),
-            "cores": available_cores(),
-            "load_avg_before": os.getloadavg(),
-        },
+        "machine": machine_info(cores=available_cores()),
         "gl_backend": backend,
         "task": args.task,
     }

@@ -303,7 +303,7 @@ def main() -> int:
         args.quick,
         {
             "machine": machine_info(
-                resolved_precision=TRAIN_CFG.mixed_precision, note="shared CPU: timings are noisy"
+                precision=TRAIN_CFG.mixed_precision, note="shared CPU: timings are noisy"
             ),
             "batch": args.batch,
             "paths": PATHS,

@@ -7,13 +7,27 @@
     python scripts/update_results.py --headline                                  # only the README's headline
     python scripts/update_results.py --file runs/paper-s0/horizon500/horizon.md --marker paper-horizon
         (a markdown file a script wrote, e.g. scripts/horizon.py's, as the block)
-    python scripts/update_results.py runs/quick --check      # exit 1 if the run's numbers differ from the block
+    python scripts/update_results.py runs/quick --check      # exit 1 if the run's numbers disagree with the block
 
 A run's block is `gazereg.report.results_block` of its report.json, with the run's attention figure copied to
 docs/figures/<marker>-attention.png; a comparison's block is `gazereg.report.compare.compare_markdown`. The
 README's headline block is the head of docs/results.md's paper-results block (its run line and success table,
 `gazereg.report.headline_lines`), copied from there so that the two pages never disagree. Blocks are
 delimited by `<!-- NAME:start -->` and `<!-- NAME:end -->` lines; everything outside them is left as it is.
+
+--check: a run's numbers depend on the machine it trained on (`--train.mixed_precision auto` trains in bf16
+where the CPU has avx512_bf16 or amx_bf16, in float32 elsewhere, and torch's kernels differ by ISA level and
+vendor), so every block ends with a data line (`gazereg.report.blockdata`: the run's
+`gazereg.runtime.hardware.NumericsKey` -- resolved precision, torch CPU capability, bf16 instruction sets,
+CPU vendor, torch version, GPU -- its success counts and its attention columns), and the check reads that
+line from the page and from the run's freshly rendered block:
+- equal keys: exact; every line but the run line (date, machine, wall time) must be the same;
+- different keys (or a key one side does not record): agreement; the same arms, conditions and episodes per
+  cell, and for each arm x condition a two-sided Fisher exact test of the page's k/n against the run's k/n
+  with p >= 0.01 / (number of cells) (Bonferroni: equal success rates fail some cell with chance <= 0.01);
+  the attention columns are not tested, their largest differences are printed;
+- a block without a data line (rendered before blocks carried one) fails, saying to regenerate it.
+It prints which comparison it made and why.
 """
 
 from __future__ import annotations
@@ -24,7 +38,9 @@ import shutil
 from pathlib import Path
 
 from gazereg.report import results_block
+from gazereg.report.blockdata import DATA_PREFIX, FAMILY_ALPHA, BlockData, agreement, alignment_differences
 from gazereg.report.compare import compare_markdown, compare_runs
+from gazereg.runtime.hardware import NumericsKey
 from gazereg.runtime.io import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -88,17 +104,65 @@ def block_differences(written: str, produced: str) -> list[str]:
 
 
 def check(root: Path, run_dir: Path, marker: str) -> int:
-    """0 when the run reproduces the numbers of docs/results.md's block, else 1 with the first difference."""
-    diffs = block_differences(
-        read_block(root / RESULTS_PAGE, marker), run_block(root, run_dir, marker, False)
-    )
-    if diffs:
+    """0 when the run's numbers are those of docs/results.md's block (exactly, for equal numerics keys) or
+    agree with them (`blockdata.agreement`, for different keys), else 1; prints which comparison it made and
+    its outcome. A block without a data line (made before blocks carried one) fails: it must be regenerated."""
+    written, produced = read_block(root / RESULTS_PAGE, marker), run_block(root, run_dir, marker, False)
+    where = f"{RESULTS_PAGE} block {marker!r}"
+    page, run = BlockData.read(written), BlockData.read(produced)
+    if page is None:
         print(
-            f"{run_dir} does not reproduce {RESULTS_PAGE} block {marker!r} ({len(diffs)} lines differ; first: "
-            f"{diffs[0]}); regenerate the block at the commit that changed the numbers"
+            f"{where} predates the numerics key (it has no {DATA_PREFIX.strip()} line), so it cannot say which "
+            f"machine and precision its numbers need: regenerate it with `python scripts/update_results.py "
+            f"{run_dir}{'' if marker == 'quick-results' else f' --marker {marker}'}` and commit it"
         )
         return 1
-    print(f"{run_dir} reproduces {RESULTS_PAGE} block {marker!r}")
+    assert run is not None  # results_block always writes the data line
+    if page.numerics is not None and page.numerics == run.numerics:
+        return _check_exact(written, produced, run_dir, where, page.numerics)
+    return _check_agreement(page, run, run_dir, where)
+
+
+def _check_exact(written: str, produced: str, run_dir: Path, where: str, key: NumericsKey) -> int:
+    """The same numerics key: every line of the block but the run line must be equal."""
+    diffs = block_differences(written, produced)
+    if diffs:
+        print(
+            f"{run_dir} does not reproduce {where} exactly although both have the numerics key "
+            f"({key.describe()}): {len(diffs)} lines differ; first: {diffs[0]}; regenerate the block at "
+            "the commit that changed the numbers"
+        )
+        return 1
+    print(f"{run_dir} reproduces {where} exactly (same numerics key: {key.describe()})")
+    return 0
+
+
+def _check_agreement(page: BlockData, run: BlockData, run_dir: Path, where: str) -> int:
+    """Different (or unrecorded) numerics keys: the success counts must agree by `blockdata.agreement`."""
+    if page.numerics is None or run.numerics is None:
+        why = f"the {'page' if page.numerics is None else 'run'} records no training precision"
+    else:
+        why = f"numerics differ: {'; '.join(page.numerics.differences(run.numerics))} (page vs run)"
+    result = agreement(page, run)
+    print(
+        f"{run_dir} vs {where}: {why}, so not an exact comparison but a test of agreement: same arms, "
+        f"conditions and episodes, and every arm x condition success count within a two-sided Fisher exact "
+        f"test of the page's at p >= {FAMILY_ALPHA}/{len(result.cells)} = {result.threshold:.3g} (Bonferroni)"
+    )
+    for c in result.cells:
+        print(
+            f"  {c.arm} x {c.condition}: page {c.page[0]}/{c.page[1]}, run {c.run[0]}/{c.run[1]}, p = {c.p:.3g}"
+        )
+    spread = alignment_differences(page, run)
+    if spread:
+        largest = ", ".join(f"{m} {d:.3f}" for m, d in spread.items())
+        print(
+            f"  attention columns not tested (one run per machine gives no spread); largest |differences|: {largest}"
+        )
+    if not result.agrees:
+        print(f"{run_dir} does not agree with {where}: {'; '.join(result.problems)}")
+        return 1
+    print(f"{run_dir} agrees with {where} (not identical: different numerics)")
     return 0
 
 

@@ -1,5 +1,5 @@
 """report.md and the results blocks as text (gazereg.report.markdown): byte-identical to the renderings stored in
-tests/report_golden/ (made from a smoke run's report.json before markdown() was split into sections), and each
+tests/report_golden/ (made from a smoke run's report.json by tests/report_golden/regenerate.py), and each
 section present exactly when the report has its data."""
 
 import copy
@@ -9,6 +9,8 @@ from pathlib import Path
 import pytest
 
 from gazereg.report import headline_lines, markdown, results_block
+from gazereg.report.blockdata import BlockData
+from gazereg.report.markdown import BLOCK_ALIGNMENT_KEYS
 
 GOLDEN = Path(__file__).parent / "report_golden"
 
@@ -35,7 +37,8 @@ def test_a_one_seed_block_is_the_headline_alignment_verdict_and_figure(report):
     head = "\n".join(headline_lines(report))
     assert block.startswith(head + "\n\nAttention vs gaze on held-out frames:\n")
     assert "Paired comparisons" not in block and "Per task" not in block  # only for several training seeds
-    assert block.endswith("\n".join([*report["verdict"], "", "![attention](figures/f.png)", ""]))
+    data = BlockData.of_report(report, BLOCK_ALIGNMENT_KEYS).line()  # the block's data line comes last
+    assert block.endswith("\n".join([*report["verdict"], "", "![attention](figures/f.png)", data, ""]))
     assert head.startswith("Latest `smoke` run: ") and "(`gazereg experiment --preset smoke`)" in head
     assert head.splitlines()[-1].startswith("| gaze | ")
 

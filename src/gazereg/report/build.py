@@ -10,6 +10,7 @@ records.
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -159,12 +160,23 @@ def write_report(out: Path, report: dict[str, Any]) -> Path:
     return out / "report.md"
 
 
+def trained_precisions(metrics_files: dict[RunId, Path]) -> dict[str, str | None]:
+    """{run: the precision it trained in} ("no" = float32, "bf16", "fp16"), as the config.json beside its
+    metrics.jsonl records it (the trainer saves its configuration after resolving "auto"); None for a run
+    whose folder has no config.json (an archive keeps only the metrics)."""
+    out: dict[str, str | None] = {}
+    for run, metrics in sorted(metrics_files.items(), key=lambda item: str(item[0])):
+        config = metrics.parent / "config.json"
+        out[str(run)] = str(json.loads(config.read_text())["mixed_precision"]) if config.is_file() else None
+    return out
+
+
 def _header(spec: ReportSpec, outputs: StageOutputs) -> dict[str, Any]:
     """What ran, where and for how long."""
     return {
         "preset": spec.preset,
         "date": outputs.date,
-        "machine": machine_summary(),
+        "machine": machine_summary(trained_precisions(outputs.metrics_files)),
         "wall_time_s": sum(outputs.stage_times.values()),
         "stage_times_s": dict(outputs.stage_times),
         "tasks": list(spec.tasks),

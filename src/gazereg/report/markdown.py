@@ -13,9 +13,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from gazereg.report.blockdata import BlockData
 from gazereg.report.comparisons import comparison_lines, paired_lines, unit_level_lines, unit_level_table
 from gazereg.report.ids import RunId
-from gazereg.report.sections import glc_lines, header_lines
+from gazereg.report.sections import glc_lines, header_lines, numerics_text
 
 # attention-vs-gaze metrics shown, in this column order: report.md shows them all, the results block a subset
 REPORT_ALIGNMENT_KEYS = (
@@ -301,7 +302,7 @@ def headline_lines(report: dict[str, Any]) -> list[str]:
         wall += f" summed over {len(report['pooled_from'])} runs"
     return [
         f"Latest `{report['preset']}` run: {report['date']}, {report['machine']['summary']}, {wall} "
-        f"(`{command}`). Tasks: {', '.join(report['tasks'])}; "
+        f"(`{command}`); {numerics_text(report['machine'])}. Tasks: {', '.join(report['tasks'])}; "
         f"{tr['steps']} training steps per arm, seeds {tr['seeds']}; "
         f"{report['eval']['episodes']} unseen setups per task and condition.",
         "",
@@ -313,7 +314,9 @@ def results_block(report: dict[str, Any], figure: str) -> str:
     """One run's results block for docs/results.md: the headline, attention vs gaze, (for several training
     seeds, or a task-level analysis) the per-task, per-seed, paired, unit-level, distance, loss and convergence
     tables, (otherwise, for more than two tasks or arms) the per-task table, the verdict and the attention
-    figure at the relative path `figure`. Ends with a newline."""
+    figure at the relative path `figure`, and last the block's data line (`blockdata.BlockData`: the numerics
+    key, the success counts and the attention columns, for scripts/update_results.py --check). Ends with a
+    newline."""
     lines = [*headline_lines(report), ""]
     if report.get("alignment"):
         lines += [
@@ -335,5 +338,6 @@ def results_block(report: dict[str, Any], figure: str) -> str:
         ]
     elif len(report["tasks"]) > 2 or len(report["success"]) > 2:  # the pooled headline hides too much
         lines += [*per_task_lines(report), ""]
-    lines += [*glc_lines(report), *report["verdict"], "", f"![attention]({figure})", ""]
+    data = BlockData.of_report(report, BLOCK_ALIGNMENT_KEYS).line()
+    lines += [*glc_lines(report), *report["verdict"], "", f"![attention]({figure})", data, ""]
     return "\n".join(lines)

@@ -7,6 +7,28 @@ from __future__ import annotations
 
 from typing import Any
 
+from gazereg.runtime.hardware import PRECISION_NAMES, NumericsKey
+
+
+def numerics_text(machine: dict[str, Any]) -> str:
+    """How the report's runs computed, in one phrase (report.json's "machine", `tables.machine_summary`):
+    `NumericsKey.describe` with the CPU model where the runs trained in one recorded precision; otherwise what
+    is known (precisions that differ between runs, or none recorded) with torch's CPU capability; "numerics
+    not recorded" for a report made before the machine record named them."""
+    if machine.get("numerics"):
+        return NumericsKey.from_dict(machine["numerics"]).describe(machine.get("cpu_model"))
+    if "cpu_capability" not in machine:
+        return "numerics not recorded"
+    found = sorted({p for p in machine.get("run_precisions", {}).values() if p is not None})
+    if len(found) > 1:
+        precision = (
+            f"training precision differs between runs ({', '.join(PRECISION_NAMES.get(p, p) for p in found)})"
+        )
+    else:
+        precision = "training precision not recorded"
+    isa = ", ".join(machine["bf16_isa"]) or "none"
+    return f"{precision}; torch CPU capability {machine['cpu_capability']}, bf16 instructions {isa}"
+
 
 def demos_text(demos: dict[str, Any]) -> str:
     """The training demonstrations in one phrase: episodes, frames and, where counted, the tasks that have
@@ -39,7 +61,8 @@ def header_lines(report: dict[str, Any]) -> list[str]:
     return [
         f"# gazereg experiment: preset `{report['preset']}`",
         "",
-        f"{report['date']} on {report['machine']['summary']}; wall time {report['wall_time_s'] / 60:.1f} min"
+        f"{report['date']} on {report['machine']['summary']}; {numerics_text(report['machine'])}; "
+        f"wall time {report['wall_time_s'] / 60:.1f} min"
         + (
             f", summed over {len(pooled)} runs pooled by `gazereg pool`: {', '.join(pooled)}."
             if pooled

@@ -27,6 +27,7 @@ from gazereg.evaluation.stats import (
     wilson,
 )
 from gazereg.report.ids import RunId
+from gazereg.runtime.hardware import BF16_CPU_FLAGS, NumericsKey, cpu_flags, cpu_identity
 
 
 def run_of(record: dict[str, Any]) -> RunId:
@@ -310,12 +311,25 @@ def verdict(
     return out or [f"Only the {reference} arm ran: no comparison."]
 
 
-def machine_summary() -> dict[str, Any]:
-    """The machine a report ran on: architecture, cores, torch and Python versions, the GPU's name (or None)."""
+def machine_summary(run_precisions: dict[str, str | None] | None = None) -> dict[str, Any]:
+    """The machine a report ran on: architecture, cores, torch and Python versions, the GPU's name (or None),
+    the CPU's model, torch's CPU capability, the bf16 instruction sets present, and, from `run_precisions`
+    ({run: the precision it trained in, None where not recorded}; None for a report without training), the
+    training precision: "precision" (the runs' one precision, else None) and "numerics" (the
+    `NumericsKey.to_dict()` of that precision on this machine, else None)."""
+    runs = dict(run_precisions or {})
+    found = set(runs.values())
+    precision = found.pop() if len(found) == 1 else None
     return {
         "summary": f"{platform.machine()} CPU, {os.cpu_count()} cores, torch {torch.__version__}, Python {platform.python_version()}",
         "cores": os.cpu_count(),
         "torch": torch.__version__,
         "python": platform.python_version(),
         "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
+        "cpu_model": cpu_identity()[1],
+        "cpu_capability": torch.backends.cpu.get_cpu_capability(),
+        "bf16_isa": sorted(cpu_flags() & BF16_CPU_FLAGS),
+        "precision": precision,
+        "run_precisions": runs,
+        "numerics": NumericsKey.here(precision).to_dict() if precision is not None else None,
     }
