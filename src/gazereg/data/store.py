@@ -15,7 +15,9 @@ Layout (one folder per episode, plain `.npy` arrays so every array memory-maps w
         prior.json                    the manifest: which source, checkpoint and parameters made them (written
                                       when every episode has its prior; prior.pending.json until then)
         ep_000000.npz                 heatmaps float16 (T, h, w) each summing to 1; valid bool (T,);
-                                      episode: the fingerprint of the episode it was made from
+                                      episode: the fingerprint of the episode it was made from;
+                                      settings: the settings fingerprint of the run that made it
+        .writing.lock                 while a `gazereg priors` run writes (gazereg.gaze.priors)
 
 Episodes and prior files are written to a temporary name and renamed, so a reader (or a resumed job) never
 sees a half-written one: an episode folder exists completely or not at all.
@@ -28,6 +30,16 @@ with a `UsageError` naming the prior file and both fingerprints. Stores written 
 working: an episode without one gets it computed from its stored arrays when first needed (the same value a
 new write records; it costs one read of the episode), and a prior file without one is used unchecked, with a
 warning that says to recompute it.
+
+Settings. A prior's files are one setting: prior.json (and prior.pending.json) record a `settings_fingerprint`
+(gazereg.gaze.priors: 16 hex digits of the settings' SHA-256) and every prior file the fingerprint of the run
+that wrote it; `read_prior` refuses a file whose fingerprint is not the manifest's (two runs with different
+settings wrote into one name) with a `UsageError` naming the file. Priors made before the fingerprint are read
+unchecked.
+
+Missing episodes. An `ep_NNNNNN` folder without meta.json (a damaged copy) is not an episode, and an episode
+folder deleted after a prior was made leaves that prior's file without its episode; both are left out when the
+store is read, with one warning per store (the count and the first few names), not one per episode.
 """
 
 from __future__ import annotations
@@ -54,6 +66,19 @@ PRIOR_MANIFEST = "prior.json"
 PRIOR_PENDING = "prior.pending.json"
 _EP_RE = re.compile(r"^ep_(\d{6})$")
 _PRIOR_RE = re.compile(r"^ep_(\d{6})\.npz$")
+_SHOWN = 5  # names a warning lists
+_warned: set[tuple[str, ...]] = set()  # what was warned about once in this process: (kind, root, ...)
+
+
+def _warn_once(key: tuple[str, ...], message: str, *args: Any) -> None:
+    if key not in _warned:
+        _warned.add(key)
+        log.warning(message, *args)
+
+
+def _first_names(names: list[str]) -> str:
+    more = f", ... ({len(names) - _SHOWN} more)" if len(names) > _SHOWN else ""
+    return ", ".join(names[:_SHOWN]) + more
 
 
 class MissingPriorError(UsageError, FileNotFoundError):
@@ -163,11 +188,25 @@ class EpisodeStore:
         return self.root / "episodes" / f"ep_{index:06d}"
 
     def indices(self) -> list[int]:
-        out = []
+        """The episodes of the store (folders ep_NNNNNN with a meta.json), sorted; folders without one are
+        left out with one warning per store."""
+        out, broken = [], []
         for p in (self.root / "episodes").iterdir():
             m = _EP_RE.match(p.name)
             if m and (p / "meta.json").exists():
                 out.append(int(m.group(1)))
+            elif m:
+                broken.append(p.name)
+        if broken:
+            broken.sort()
+            _warn_once(
+                ("no-meta", str(self.root.resolve()), *broken),
+                "store %s: %d episode folder(s) have no meta.json and are skipped (%s): a damaged or partial "
+                "copy; delete them or copy them again",
+                self.root,
+                len(broken),
+                _first_names(broken),
+            )
         return sorted(out)
 
     def __len__(self) -> int:
@@ -287,6 +326,17 @@ class EpisodeStore:
         prior whose `gazereg priors` run has not finished."""
         path = self.prior_dir(name) / PRIOR_MANIFEST
         if path.exists():
+            gone = sorted(set(self.prior_indices(name)) - set(self.indices()))
+            if gone:
+                names = [f"ep_{i:06d}" for i in gone]
+                _warn_once(
+                    ("gone", str(self.root.resolve()), name, *names),
+                    "store %s: %d episode(s) that priors %r were made for are gone (%s); they are skipped",
+                    self.root,
+                    len(gone),
+                    name,
+                    _first_names(names),
+                )
             return json.loads(path.read_text())
         if (self.prior_dir(name) / PRIOR_PENDING).exists():
             done, n = len(self.prior_indices(name)), len(self.indices())
@@ -304,9 +354,12 @@ class EpisodeStore:
     def _prior_path(self, name: str, index: int) -> Path:
         return self.prior_dir(name) / f"ep_{index:06d}.npz"
 
-    def write_prior(self, name: str, index: int, heatmaps: np.ndarray, valid: np.ndarray) -> None:
+    def write_prior(
+        self, name: str, index: int, heatmaps: np.ndarray, valid: np.ndarray, settings: str | None = None
+    ) -> None:
         """Store an episode's priors: heatmaps (T, h, w) summing to 1 per valid frame, valid (T,) bool; the
-        file records the episode's fingerprint."""
+        file records the episode's fingerprint and `settings`, the settings fingerprint of the run making it
+        (module docstring)."""
         T = self.meta(index)["length"]
         if heatmaps.ndim != 3 or heatmaps.shape[0] != T or valid.shape != (T,):
             raise ValueError(
@@ -314,16 +367,44 @@ class EpisodeStore:
             )
         if not np.isfinite(heatmaps).all() or (heatmaps < 0).any():
             raise ValueError(f"priors for episode {index} contain NaN, inf or negative values")
-        episode = np.array(self.episode_fingerprint(index))
+        arrays = {"episode": np.array(self.episode_fingerprint(index))}
+        if settings is not None:
+            arrays["settings"] = np.array(settings)
         with atomic_path(self._prior_path(name, index)) as tmp, open(tmp, "wb") as f:
-            np.savez(f, heatmaps=heatmaps.astype(np.float16), valid=valid.astype(bool), episode=episode)
+            np.savez(f, heatmaps=heatmaps.astype(np.float16), valid=valid.astype(bool), **arrays)
 
-    def check_prior(self, name: str, index: int) -> None:
-        """Refuse (`UsageError`) a prior file made from another episode than the store's episode `index`."""
+    def prior_settings(self, name: str, index: int) -> str | None:
+        """The settings fingerprint an episode's prior file records (None: made before it was recorded)."""
+        with np.load(self._prior_path(name, index)) as z:
+            return str(z["settings"]) if "settings" in z.files else None
+
+    def check_prior(self, name: str, index: int, settings: str | None = None) -> None:
+        """Refuse (`UsageError`) a prior file made from another episode than the store's episode `index`, or
+        (with `settings`) by a run with other settings (a file that records none is accepted)."""
         path = self._prior_path(name, index)
         with np.load(path) as z:
             made_from = str(z["episode"]) if "episode" in z.files else None
+            made_with = str(z["settings"]) if "settings" in z.files else None
         self._check_made_from(name, index, made_from)
+        if settings is not None and made_with is not None and made_with != settings:
+            raise UsageError(
+                f"prior {path} was made with other settings (fingerprint {made_with}) than this run's "
+                f"({settings}): another `gazereg priors` run wrote into {name!r}; recompute it with "
+                "`gazereg priors --overwrite` or use --name to store these separately"
+            )
+
+    def _check_settings(self, name: str, path: Path, made_with: str | None) -> None:
+        """Refuse a prior file whose settings fingerprint is not the one its manifest records."""
+        manifest = self.prior_dir(name) / PRIOR_MANIFEST
+        if not manifest.exists():
+            return
+        recorded = json.loads(manifest.read_text()).get("settings_fingerprint")
+        if recorded is not None and made_with != recorded:
+            raise UsageError(
+                f"prior {path} was made with other settings (fingerprint {made_with or 'none'}) than {manifest} "
+                f"records ({recorded}): two `gazereg priors` runs wrote into {name!r}; recompute it with "
+                "`gazereg priors --overwrite`"
+            )
 
     def _check_made_from(self, name: str, index: int, made_from: str | None) -> None:
         if made_from is None:
@@ -346,14 +427,17 @@ class EpisodeStore:
 
     def read_prior(self, name: str, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Returns heatmaps float32 (T, h, w) and valid bool (T,); a prior made from another episode than
-        this store's is refused (`UsageError`, see the module docstring)."""
+        this store's, or with other settings than its manifest records, is refused (`UsageError`, see the
+        module docstring)."""
         path = self._prior_path(name, index)
         if not path.exists():
             raise FileNotFoundError(f"no {name!r} prior for episode {index} in {self.root}")
         with np.load(path) as z:
             heat, valid = z["heatmaps"].astype(np.float32), z["valid"].astype(bool)
             made_from = str(z["episode"]) if "episode" in z.files else None
+            made_with = str(z["settings"]) if "settings" in z.files else None
         self._check_made_from(name, index, made_from)
+        self._check_settings(name, path, made_with)
         # float16 storage rounds each cell; renormalise so every valid frame sums to 1 exactly again.
         total = heat.sum(axis=(1, 2), keepdims=True)
         valid &= total[:, 0, 0] > 0
