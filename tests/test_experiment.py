@@ -9,6 +9,7 @@ import pytest
 
 from gazereg import cli
 from gazereg.experiment import STAGES, main
+from gazereg.runtime.hardware import NumericsKey
 
 pytestmark = pytest.mark.sim
 
@@ -30,6 +31,10 @@ def test_smoke_experiment_end_to_end_and_resume(tmp_path, capsys):
         assert (out / fig).stat().st_size > 1000
     assert report["videos"] and all((out / v).exists() for v in report["videos"])
     assert (out / "report.md").read_text().startswith("# gazereg experiment")
+    # the precision every run trained in, as its trainer resolved "auto", and the machine's numerics key (#33)
+    precisions = {json.loads(p.read_text())["mixed_precision"] for p in (out / "train").glob("*/config.json")}
+    assert precisions == {report["machine"]["precision"]} and report["machine"]["precision"] in ("no", "bf16")
+    assert report["machine"]["numerics"] == NumericsKey.here(report["machine"]["precision"]).to_dict()
     eval_info = json.loads((out / "eval" / "eval_info.json").read_text())
     seeds = {
         (e["arm"], e["condition"]): sorted(
