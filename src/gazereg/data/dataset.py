@@ -198,7 +198,8 @@ class EpisodeDataset(torch.utils.data.Dataset):
     # ----- gaze ----------------------------------------------------------------------------------------------
     def _load_gaze(self, name: str, camera: str | None, geometry: PatchGeometry | None, eps: float) -> None:
         info = self.store.prior_info(name)
-        camera = camera or info.get("camera")
+        recorded = info.get("camera")
+        asked, camera = camera, camera or recorded
         if camera is None:
             raise UsageError(
                 f"prior {name!r} does not record its camera (prior.json); pass the gaze camera explicitly"
@@ -206,6 +207,11 @@ class EpisodeDataset(torch.utils.data.Dataset):
         if camera not in self.cameras:
             raise UsageError(
                 f"prior {name!r} is for camera {camera!r}, which the policy does not see (cameras {self.cameras})"
+            )
+        if recorded is not None and camera != recorded:
+            raise UsageError(
+                f"prior {name!r} was made for camera {recorded!r}, not {asked!r}: a prior regularizes only the "
+                "camera it was made for"
             )
         if geometry is None:
             raise ValueError("mapping gaze onto patches needs the policy's image geometry of the gaze camera")

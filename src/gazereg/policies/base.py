@@ -45,12 +45,20 @@ from torch import Tensor, nn
 from gazereg.attention.probe import ProbeSpec
 from gazereg.data.dataset import StoreInfo
 from gazereg.patches import PatchGeometry
+from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_dir, load_safetensors, save_safetensors
 
 MODEL_FILE, CONFIG_FILE, TOKENIZER_FILE = "model.safetensors", "config.json", "tokenizer.json"
 
 C = TypeVar("C", bound="PolicyConfig")
 P = TypeVar("P", bound="Policy")
+
+
+class UnknownCamera(UsageError, KeyError):
+    """A camera the policy does not see (asked for its geometry, patches or attention); one line naming it and
+    the policy's cameras."""
+
+    __str__ = BaseException.__str__  # the message as given, not KeyError's quoted repr
 
 
 class PolicyTokenizer(Protocol):

@@ -44,7 +44,7 @@ from torch import Tensor, nn
 from gazereg.attention.probe import ProbeSpec
 from gazereg.data.dataset import StoreInfo
 from gazereg.patches import PatchGeometry
-from gazereg.policies.base import Policy
+from gazereg.policies.base import Policy, UnknownCamera
 from gazereg.policies.vla.configuration_vla import VLAConfig
 from gazereg.policies.vla.layers_vla import Block, ConvStem, attention_bias, flow_time_embedding
 from gazereg.policies.vla.processor_vla import Normalizer, Tokenizer, random_shift, to_input_images
@@ -113,8 +113,8 @@ class VLAPolicy(Policy):
     # ----- geometry and the gaze probe ---------------------------------------------------------------------
     def camera_index(self, camera: str) -> int:
         if camera not in self.config.cameras:
-            raise KeyError(
-                f"camera {camera!r} is not one of the policy's cameras {list(self.config.cameras)}"
+            raise UnknownCamera(
+                f"camera {camera!r} is not one of the policy's cameras ({', '.join(self.config.cameras)})"
             )
         return self.config.cameras.index(camera)
 
