@@ -10,10 +10,13 @@ episode is written atomically, so an error or a kill mid-episode leaves no parti
 
 from __future__ import annotations
 
+import logging
+import shutil
 import sys
 import time
 from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -22,6 +25,8 @@ from tqdm import tqdm
 from gazereg.data.errors import DataImportError, ImportUsageError
 from gazereg.data.store import Episode, EpisodeStore, describe_non_finite
 from gazereg.runtime.io import sweep_stale_temps
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -140,3 +145,38 @@ def write_episodes(
         "seconds": seconds,
         "frames_per_s": frames / max(seconds, 1e-9),
     }
+
+
+def import_into(
+    out: str | Path,
+    episodes: Iterable[SourceEpisode],
+    total: int | None = None,
+    desc: str = "import",
+    progress: bool = True,
+) -> dict[str, Any]:
+    """`write_episodes` into the store at `out`, creating it when it is not one yet. When the import fails
+    (an error or an interrupt) before writing any episode into a store it created, what it created is removed
+    (`out` itself when it did not exist); episodes already written stay, with a warning saying so, and the
+    rerun resumes after them."""
+    out = Path(out)
+    existed, fresh = out.exists(), not (out / "store.json").exists()
+    store = EpisodeStore(out, create=True)
+    try:
+        return write_episodes(store, episodes, total=total, desc=desc, progress=progress)
+    except BaseException:
+        kept = store.indices() if fresh else []
+        if fresh and not kept:
+            if existed:
+                (out / "store.json").unlink(missing_ok=True)
+                shutil.rmtree(out / "episodes", ignore_errors=True)
+            else:
+                shutil.rmtree(out, ignore_errors=True)
+        elif kept:
+            log.warning(
+                "the %d episode(s) imported before the error are kept in %s; rerun the import to resume after "
+                "them (or delete %s to start again)",
+                len(kept),
+                out,
+                out,
+            )
+        raise

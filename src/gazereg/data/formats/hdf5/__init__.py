@@ -53,8 +53,8 @@ from typing import Any
 
 from gazereg.data.errors import DataImportError, ImportUsageError
 from gazereg.data.formats.hdf5.demos import Hdf5Demos, default_state_keys
-from gazereg.data.imports import SourceEpisode, rotated_cameras, write_episodes
-from gazereg.data.store import Episode, EpisodeStore
+from gazereg.data.imports import SourceEpisode, import_into, rotated_cameras
+from gazereg.data.store import Episode
 from gazereg.runtime.config import parse
 
 
@@ -144,8 +144,7 @@ def import_hdf5(cfg: Hdf5ImportConfig) -> dict[str, Any]:
             opened.append(demos)
             items += plan_file(cfg, demos, offset)
             offset += max(demos.demos) + 1
-        store = EpisodeStore(cfg.out, create=True)
-        return write_episodes(store, items, total=len(items), desc="import hdf5", progress=cfg.progress)
+        return import_into(cfg.out, items, total=len(items), desc="import hdf5", progress=cfg.progress)
     finally:
         for d in opened:
             d.close()

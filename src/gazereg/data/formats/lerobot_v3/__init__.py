@@ -48,8 +48,8 @@ from typing import Any
 
 from gazereg.data.errors import ImportUsageError
 from gazereg.data.formats.lerobot_v3.dataset import LeRobotV3Dataset
-from gazereg.data.imports import SourceEpisode, rotated_cameras, write_episodes
-from gazereg.data.store import Episode, EpisodeStore
+from gazereg.data.imports import SourceEpisode, import_into, rotated_cameras
+from gazereg.data.store import Episode
 from gazereg.runtime.config import parse
 
 
@@ -123,10 +123,9 @@ def import_lerobot(cfg: LeRobotImportConfig) -> dict[str, Any]:
     """Import (or resume importing) a LeRobot v3.0 data set into cfg.out; returns counts and throughput."""
     dataset = LeRobotV3Dataset(cfg.root, tolerance_s=cfg.tolerance_s, nonfinite_ok=cfg.nonfinite_ok)
     items = plan_lerobot(cfg, dataset)
-    store = EpisodeStore(cfg.out, create=True)
     try:
-        report = write_episodes(
-            store, items, total=len(items), desc=f"import {dataset.root.name}", progress=cfg.progress
+        report = import_into(
+            cfg.out, items, total=len(items), desc=f"import {dataset.root.name}", progress=cfg.progress
         )
     finally:
         dataset.close()

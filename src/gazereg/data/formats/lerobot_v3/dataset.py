@@ -234,9 +234,15 @@ def _in_frame_order(rows: _Rows) -> _Rows:
     T = len(rows)
     frame_index = rows.column("frame_index")
     order = np.argsort(frame_index, kind="stable")
-    if not np.array_equal(frame_index[order], np.arange(T)):
+    ordered = frame_index[order]
+    breaks = np.flatnonzero(ordered != np.arange(T))
+    if breaks.size:
+        k = int(breaks[0])
         raise DataImportError(
-            f"{rows.where}: frame_index is not 0..{T - 1} (got {frame_index[order][:5]}...)"
+            f"{rows.where}: frame_index must run 0..{T - 1} but breaks after {k - 1}: expected {k}, got "
+            f"{ordered[k]} (a missing or repeated frame)"
+            if k
+            else f"{rows.where}: frame_index must run 0..{T - 1} but starts at {ordered[0]}"
         )
     if np.array_equal(order, np.arange(T)):
         return rows
