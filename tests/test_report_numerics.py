@@ -2,6 +2,7 @@
 capability, the bf16 instruction sets, the CPU) in report.json's "machine" and in the lines that say where it ran
 (report.md's header, the results block's run line)."""
 
+import importlib.util
 import json
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from gazereg.report.sections import numerics_text
 from gazereg.runtime import hardware
 from gazereg.runtime.hardware import NumericsKey
 
+ROOT = Path(__file__).resolve().parents[1]
 GOLDEN = Path(__file__).parent / "report_golden"
 
 
@@ -65,3 +67,18 @@ def test_report_md_and_the_block_run_line_name_the_numerics():
     assert f"Python 3.11.7; {said}; wall time 0.3 min." in markdown(report).splitlines()[2]
     run_line = results_block(report, "figures/f.png").splitlines()[0]
     assert f"(`gazereg experiment --preset smoke`); {said}. Tasks: reach-v3;" in run_line
+
+
+def test_every_benchmark_records_the_cpu_capability_and_the_precision():
+    spec = importlib.util.spec_from_file_location("_timing", ROOT / "benchmarks" / "_timing.py")
+    timing = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(timing)
+    info = timing.machine_info(threads=3)
+    assert info["resolved_precision"] == hardware.auto_precision("cpu") and info["threads"] == 3
+    assert info["cpu_capability"] == torch.backends.cpu.get_cpu_capability()
+    assert info["numerics"] == NumericsKey.here(info["resolved_precision"]).to_dict()
+    assert timing.machine_info(precision="no")["numerics"]["precision"] == "no"
+    benches = sorted((ROOT / "benchmarks").glob("bench_*.py"))
+    assert len(benches) >= 10
+    for bench in benches:  # each one's JSON names the machine through machine_info
+        assert "machine_info(" in bench.read_text(), bench.name
