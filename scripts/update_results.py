@@ -25,7 +25,7 @@ line from the page and from the run's freshly rendered block:
 - different keys (or a key one side does not record): agreement; the same arms, conditions and episodes per
   cell, and for each arm x condition a two-sided Fisher exact test of the page's k/n against the run's k/n
   with p >= 0.01 / (number of cells) (Bonferroni: equal success rates fail some cell with chance <= 0.01);
-  the attention columns are not tested, their largest differences are printed;
+  the attention columns are not tested (their largest differences are printed), nor the verdict lines;
 - a block without a data line (rendered before blocks carried one) fails, saying to regenerate it.
 It prints which comparison it made and why.
 """
