@@ -233,7 +233,7 @@ def test_gaze_options_are_validated_as_for_smolvla(tiny):
     """One validation for every gaze type (gaze_common.validate_gaze_options)."""
     for kind in KINDS:
         _, _, GC, _ = _classes(kind)
-        with pytest.raises(ValueError, match="gaze_weight must be a finite"):
+        with pytest.raises(ValueError, match="gaze_weight: must be a finite"):
             GC(gaze_weight=float("nan"))
         with pytest.raises(ValueError, match="gaze_target_mass"):
             GC(gaze_target_mass=1.5)

@@ -1,6 +1,18 @@
 """What every gaze policy type of this plugin (smolvla_gaze, pi0_gaze, pi05_gaze) shares: the gaze options and
-their validation (`GazeOptions`, `validate_gaze_options`), and the gaze term added to the policy's loss
-(`add_gaze_term`).
+their validation (`GazeOptions`, `validate_gaze_options`), the checks of the data set's gaze column when the policy
+is built (`check_gaze_features`, gaze_data.check_gaze_data) and while it trains (`GazeActivity`), and the gaze term
+added to the policy's loss (`add_gaze_term`).
+
+Every check raises errors.GazeUsageError naming the option or column; inside lerobot-train it is printed as one
+line with exit status 2 (errors.refusing). When each check runs:
+- the options (`validate_gaze_options`): when the config is built, i.e. while lerobot-train parses its command line;
+- the gaze column's presence and shape per frame, the flag column and `gaze_camera` (`check_gaze_features`): in
+  the config's `set_dataset_feature_metadata`, which lerobot's make_policy calls with the data set's features
+  before it builds the policy (before any weights load);
+- the column's content (gaze_data.check_gaze_data): at the start of the policy's __init__, still before weights
+  load: a data set whose whole gaze column has no usable frame is refused;
+- while training (`GazeActivity`): when the first INACTIVE_FRAMES_LIMIT training frames (counted over batches)
+  all lack usable gaze, e.g. because the episodes trained on (--dataset.episodes) have none.
 
 The comment above each `GazeOptions` field is its help text in `lerobot-train --policy.type=<type> --help`
 (draccus reads it from this source, looking through a config's base classes).
@@ -9,6 +21,7 @@ The comment above each `GazeOptions` field is its help text in `lerobot-train --
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
 
@@ -17,6 +30,9 @@ from torch import Tensor
 from gazereg.integrations.gaze_mass import check_target_mass, gaze_mass_kl, gaze_mass_loss
 from gazereg.losses import gaze_kl, gaze_loss
 from gazereg.patches import PatchGeometry
+
+from .errors import GazeUsageError, refusing
+from .gaze_targets import gaze_kind, gaze_valid_key
 
 DIVERGENCES = ("forward", "reverse", "js")
 
@@ -47,39 +63,109 @@ class GazeOptions:
 
     def __post_init__(self) -> None:
         super().__post_init__()  # the LeRobot config mixed in after this class
-        validate_gaze_options(self)
+        with refusing():
+            validate_gaze_options(self)
+
+    def set_dataset_feature_metadata(self, features: Mapping[str, Mapping[str, Any]]) -> None:
+        """lerobot's make_policy hook, called with the data set's features before the policy is built: checks the
+        gaze column, its shape per frame and the regularized camera (check_gaze_features)."""
+        base = getattr(super(), "set_dataset_feature_metadata", None)
+        if callable(base):
+            base(features)
+        with refusing():
+            check_gaze_features(self, features)
 
     def gaze_camera_key(self) -> str:
         """The regularized camera's image feature key."""
         cams = list(self.image_features)
         if not cams:
-            raise ValueError("the policy has no image features to regularize")
+            raise GazeUsageError("gaze_camera", "the policy has no image features to regularize")
         cam = self.gaze_camera or cams[0]
         if cam not in cams:
-            raise ValueError(f"gaze_camera {cam!r} is not one of the policy's image features {cams}")
+            raise GazeUsageError(f"gaze_camera={cam}", f"not one of the policy's image features {cams}")
         return cam
 
 
 def validate_gaze_options(cfg: Any) -> None:
-    """Raise ValueError naming the first invalid gaze option of a gaze config (a `GazeOptions`)."""
+    """Raise GazeUsageError (a ValueError) naming the first invalid gaze option of a gaze config."""
     if not (math.isfinite(cfg.gaze_weight) and cfg.gaze_weight >= 0):
-        raise ValueError(f"gaze_weight must be a finite number >= 0, got {cfg.gaze_weight}")
+        raise GazeUsageError("gaze_weight", f"must be a finite number >= 0, got {cfg.gaze_weight}")
     if cfg.gaze_target_mass is not None and not 0 < cfg.gaze_target_mass <= 1:
-        raise ValueError(f"gaze_target_mass must be in (0, 1], got {cfg.gaze_target_mass}")
+        raise GazeUsageError("gaze_target_mass", f"must be in (0, 1], got {cfg.gaze_target_mass}")
     if not cfg.gaze_sigma > 0:
-        raise ValueError(f"gaze_sigma must be > 0 (fraction of the frame height), got {cfg.gaze_sigma}")
+        raise GazeUsageError(
+            "gaze_sigma", f"must be > 0 (fraction of the frame height), got {cfg.gaze_sigma}"
+        )
     if cfg.gaze_divergence not in DIVERGENCES:
-        raise ValueError(f"gaze_divergence must be forward, reverse or js, got {cfg.gaze_divergence!r}")
+        raise GazeUsageError(
+            "gaze_divergence", f"must be forward, reverse or js, got {cfg.gaze_divergence!r}"
+        )
     if cfg.gaze_key.startswith("observation."):
-        raise ValueError(
-            f"gaze_key {cfg.gaze_key!r} is under observation.*, which LeRobot feeds to the policy as an "
-            "input; store gaze under another prefix (e.g. gaze.point)"
+        raise GazeUsageError(
+            f"gaze_key={cfg.gaze_key}",
+            "the column is under observation.*, which LeRobot feeds to the policy as an input; store gaze under "
+            "another prefix (e.g. gaze.point)",
         )
     if cfg._gaze_eager_only and cfg.gaze_weight > 0 and cfg.compile_model:
-        raise ValueError(
+        raise GazeUsageError(
+            "compile_model",
             "gaze regularization (gaze_weight > 0) captures attention in the eager forward and cannot run with "
-            "compile_model: set it to false or gaze_weight=0"
+            "compile_model: set it to false or gaze_weight=0",
         )
+
+
+def check_gaze_features(cfg: Any, features: Mapping[str, Mapping[str, Any]]) -> None:
+    """Raise GazeUsageError unless the data set's `features` (LeRobot's info.json features: key -> {dtype, shape,
+    ...}) hold the gaze column `cfg.gaze_key` with a shape per frame gaze_targets.gaze_kind accepts, its flag
+    column (where it has one) holds one bool per frame, and `cfg.gaze_camera` is one of the policy's image
+    features. Nothing is checked when gaze_weight is 0 (the plain policy)."""
+    if cfg.gaze_weight == 0:
+        return
+    key = cfg.gaze_key
+    if key not in features:
+        gaze_cols = sorted(k for k in features if k.startswith("gaze."))
+        have = f"its gaze columns: {', '.join(gaze_cols)}" if gaze_cols else "it has no gaze.* column"
+        raise GazeUsageError(f"gaze_key={key}", f"the data set has no such column ({have})")
+    gaze_kind(key, tuple(features[key].get("shape") or ()))
+    flag = gaze_valid_key(key)
+    if flag is not None and flag in features:
+        shape = tuple(int(d) for d in features[flag].get("shape") or (1,))
+        if math.prod(shape) != 1:
+            raise GazeUsageError(f"gaze_key={key}", f"its flag column {flag} has shape {shape}, not one bool")
+    cfg.gaze_camera_key()
+
+
+INACTIVE_FRAMES_LIMIT = 1000
+
+
+class GazeActivity:
+    """Stops a gaze run whose term is never active: counts the training frames the gaze term saw and raises
+    GazeUsageError once `limit` frames (over all batches so far, repeats counted) have gone by without a single
+    usable one. After the first usable frame it checks nothing more. A training subset whose true fraction of
+    usable frames is p is refused by mistake with probability (1 - p) ** limit (about 4e-5 for p = 0.01)."""
+
+    def __init__(self, gaze_key: str, limit: int = INACTIVE_FRAMES_LIMIT):
+        self.gaze_key = gaze_key
+        self.limit = limit
+        self.frames = 0
+        self.active = False
+
+    def update(self, valid: Tensor) -> None:
+        """valid (B,) bool: the batch's frames with usable gaze."""
+        if self.active:
+            return
+        if bool(valid.any()):
+            self.active = True
+            return
+        self.frames += int(valid.numel())
+        if self.frames >= self.limit:
+            raise GazeUsageError(
+                f"gaze_key={self.gaze_key}",
+                f"none of the first {self.frames} training frames had usable gaze (gaze/valid_frac 0 at every "
+                "step), so the gaze term was never active: the episodes trained on have no usable value in the "
+                "column (NaN, outside the image, a heatmap <= 0 or flagged invalid); train on episodes with gaze "
+                "or set --policy.gaze_weight=0",
+            )
 
 
 class Capture(Protocol):

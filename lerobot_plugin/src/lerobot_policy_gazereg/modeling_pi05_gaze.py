@@ -9,6 +9,8 @@ from typing import Any
 from lerobot.policies.pi05.modeling_pi05 import PI05Policy
 
 from .configuration_pi05_gaze import PI05GazeConfig
+from .errors import refusing
+from .gaze_data import check_gaze_data
 from .modeling_pi0_gaze import PiGazeMixin
 
 
@@ -17,5 +19,7 @@ class PI05GazePolicy(PiGazeMixin, PI05Policy):
     name = "pi05_gaze"
 
     def __init__(self, config: PI05GazeConfig, **kwargs: Any):
+        with refusing():
+            check_gaze_data(config, kwargs.get("dataset_meta"))  # before PaliGemma (and its weights) is built
         super().__init__(config, **kwargs)
         self._init_gaze(kwargs)

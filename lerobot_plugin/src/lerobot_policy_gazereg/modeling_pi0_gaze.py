@@ -23,9 +23,11 @@ from gazereg.patches import PatchGeometry
 
 from .capture_pi0 import PiCapture
 from .configuration_pi0_gaze import PI0GazeConfig
-from .gaze_common import add_gaze_term, check_token_count, gaze_camera_index
+from .errors import refusing
+from .gaze_common import GazeActivity, add_gaze_term, check_token_count, gaze_camera_index
+from .gaze_data import check_gaze_data
 from .gaze_targets import gaze_distribution, gaze_valid_flag
-from .modeling_smolvla_gaze import SmolVLAGazePolicy
+from .modeling_smolvla_gaze import SmolVLAGazePolicy, gaze_frame_shape
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +55,8 @@ class PiGazeMixin:
         self._gaze_root = getattr(meta, "root", None)
         self._gaze_table: tuple[Tensor, Tensor] | None = None
         self._gaze_geometry: tuple[PatchGeometry, tuple[int, int]] | None = None
+        self._gaze_frame = gaze_frame_shape(self.config, meta)
+        self._gaze_activity = GazeActivity(self.config.gaze_key)
 
     def _geometry(self) -> tuple[PatchGeometry, tuple[int, int]]:
         if self._gaze_geometry is None:
@@ -69,12 +73,25 @@ class PiGazeMixin:
         if not self.training or cfg.gaze_weight == 0:
             return super().forward(batch, reduction=reduction)
         cam, cam_index = gaze_camera_index(cfg, batch)
-        column, flag = self._gaze_column(batch), gaze_valid_flag(batch, cfg.gaze_key)
+        column = self._gaze_column(batch)
+        with refusing():
+            flag = gaze_valid_flag(batch, cfg.gaze_key)
         with self.gaze_capture.capture(cam_index, cfg.chunk_size):
             loss, loss_dict = super().forward(batch, reduction=reduction)
         geom, src_hw = self._geometry()
         check_token_count(cam, self.gaze_capture.image_tokens[cam_index], geom)
-        gaze, valid = gaze_distribution(column, geom, False, cfg.gaze_sigma, src_hw, valid=flag)
+        with refusing():
+            gaze, valid = gaze_distribution(
+                column,
+                geom,
+                False,
+                cfg.gaze_sigma,
+                src_hw,
+                valid=flag,
+                key=cfg.gaze_key,
+                frame_shape=self._gaze_frame,
+            )
+            self._gaze_activity.update(valid)
         return add_gaze_term(cfg, self.gaze_capture, loss, loss_dict, gaze, valid, reduction)
 
 
@@ -83,5 +100,7 @@ class PI0GazePolicy(PiGazeMixin, PI0Policy):
     name = "pi0_gaze"
 
     def __init__(self, config: PI0GazeConfig, **kwargs: Any):
+        with refusing():
+            check_gaze_data(config, kwargs.get("dataset_meta"))  # before PaliGemma (and its weights) is built
         super().__init__(config, **kwargs)
         self._init_gaze(kwargs)

@@ -13,6 +13,11 @@ Where the gaze comes from, per training batch:
    converters, which keep only observation.*, action, *_is_pad and a few metadata keys), the same column read
    once from the data set's parquet files (the policy receives the data set metadata) and looked up by the
    batch's `index`.
+
+Before the model is built (so before any weights load) the data set's gaze column is checked
+(gaze_common.check_gaze_features in the config's feature hook, gaze_data.check_gaze_data here: a column without
+a single usable frame is refused), and while training `GazeActivity` stops a run whose gaze term is never
+active; each refusal is one line naming the column (errors.refusing).
 """
 
 from __future__ import annotations
@@ -27,7 +32,9 @@ from torch import Tensor
 
 from .capture import SmolVLACapture
 from .configuration_smolvla_gaze import SmolVLAGazeConfig
-from .gaze_common import add_gaze_term, check_token_count, gaze_camera_index
+from .errors import refusing
+from .gaze_common import GazeActivity, add_gaze_term, check_token_count, gaze_camera_index
+from .gaze_data import check_gaze_data
 from .gaze_targets import gaze_distribution, gaze_valid_flag, smolvla_geometry
 
 log = logging.getLogger(__name__)
@@ -51,17 +58,27 @@ def _load_gaze_column(root: Path, key: str) -> tuple[Tensor, Tensor] | None:
     return torch.cat(idx).long(), torch.cat(vals)
 
 
+def gaze_frame_shape(config: Any, meta: Any) -> tuple[int, ...] | None:
+    """The data set's shape per frame of the gaze column (LeRobotDatasetMetadata.features), or None without one."""
+    feature = getattr(meta, "features", {}).get(config.gaze_key) if meta is not None else None
+    return tuple(int(d) for d in feature["shape"]) if feature else None
+
+
 class SmolVLAGazePolicy(SmolVLAPolicy):
     config_class = SmolVLAGazeConfig
     name = "smolvla_gaze"
 
     def __init__(self, config: SmolVLAGazeConfig, **kwargs: Any):
+        meta = kwargs.get("dataset_meta")
+        with refusing():
+            check_gaze_data(config, meta)  # before the VLM (and its weights) is built
         super().__init__(config, **kwargs)
         self.gaze_capture = SmolVLACapture(self.model, config.gaze_layers)
-        meta = kwargs.get("dataset_meta")
         self._gaze_root = getattr(meta, "root", None)
         self._gaze_table: tuple[Tensor, Tensor] | None = None
         self._gaze_geometry = None
+        self._gaze_frame = gaze_frame_shape(config, meta)
+        self._gaze_activity = GazeActivity(config.gaze_key)
 
     # ----- gaze targets --------------------------------------------------------------------------------------
     def _geometry(self):
@@ -112,7 +129,17 @@ class SmolVLAGazePolicy(SmolVLAPolicy):
             loss, loss_dict = super().forward(batch, noise=noise, time=time, reduction=reduction)
         geom, flip, src_hw = self._geometry()
         check_token_count(cam, self.gaze_capture.image_tokens[cam_index], geom)
-        gaze, valid = gaze_distribution(
-            column, geom, flip, cfg.gaze_sigma, src_hw, valid=gaze_valid_flag(batch, cfg.gaze_key)
-        )
+        with refusing():
+            flag = gaze_valid_flag(batch, cfg.gaze_key)
+            gaze, valid = gaze_distribution(
+                column,
+                geom,
+                flip,
+                cfg.gaze_sigma,
+                src_hw,
+                valid=flag,
+                key=cfg.gaze_key,
+                frame_shape=self._gaze_frame,
+            )
+            self._gaze_activity.update(valid)
         return add_gaze_term(cfg, self.gaze_capture, loss, loss_dict, gaze, valid, reduction)
