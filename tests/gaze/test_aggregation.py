@@ -72,5 +72,5 @@ def test_bad_input():
         aggregate(torch.zeros(0, 4, 4))
     with pytest.raises(ValueError, match="NaN"):
         aggregate(torch.full((2, 4, 4), float("nan")))
-    with pytest.raises(ValueError, match="past and future"):
+    with pytest.raises(ValueError, match="--aggregation.past must be an integer >= 0, got -1"):
         AggregationConfig(past=-1)

@@ -10,21 +10,25 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal, get_args
 
 import torch
 from torch import Tensor
 
 from gazereg.gaze.heatmaps import as_tensor, check_heatmaps
+from gazereg.runtime.config import Validated, require_choice, require_number
 
 Kernel = Literal["uniform", "gaussian", "exponential"]
 
 
 @dataclass(frozen=True)
-class AggregationConfig:
+class AggregationConfig(Validated):
     """Window of `past` frames before and `future` frames after t (centred: both; causal: future=0;
     future-only: past=0). Kernel weights by offset j: uniform 1; gaussian exp(-j^2 / (2 sigma^2));
-    exponential exp(-|j| / tau)."""
+    exponential exp(-|j| / tau). Checked when built (`Validated`): a bad value is a UsageError naming the
+    option, e.g. `--aggregation.past must be an integer >= 0, got -1`."""
+
+    OPTION_PREFIX: ClassVar[str] = "aggregation."
 
     past: int = 2
     future: int = 2
@@ -32,15 +36,13 @@ class AggregationConfig:
     sigma: float = 2.0  # frames, for the gaussian kernel
     tau: float = 2.0  # frames, for the exponential kernel
 
-    def __post_init__(self) -> None:
-        if self.past < 0 or self.future < 0:
-            raise ValueError(
-                f"past and future must be >= 0 frames, got past={self.past}, future={self.future}"
-            )
-        if self.kernel not in ("uniform", "gaussian", "exponential"):
-            raise ValueError(f"unknown kernel {self.kernel!r}; use uniform, gaussian or exponential")
-        if self.sigma <= 0 or self.tau <= 0:
-            raise ValueError("sigma and tau must be > 0 frames")
+    def validate(self, prefix: str) -> None:
+        """UsageError naming the first bad option (`prefix`: "aggregation." on the command line)."""
+        for name in ("past", "future"):
+            require_number(getattr(self, name), prefix + name, 0, integer=True)
+        require_choice(self.kernel, prefix + "kernel", get_args(Kernel))
+        for name in ("sigma", "tau"):
+            require_number(getattr(self, name), prefix + name, 0, open_low=True)
 
     def weights(self) -> Tensor:
         """(past + future + 1,) weights for offsets -past..future."""

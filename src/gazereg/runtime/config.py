@@ -10,7 +10,8 @@ Validation: a config class derived from `Validated` checks its own fields in `va
 (`__post_init__`: presets, `dataclasses.replace`, the command line) and raises `UsageError` naming the option
 as it is typed (`--gaze.weight must be a finite number >= 0, got nan`; `require_number`, `require_choice`).
 While `parse` runs tyro the checks wait until the whole config is built, then run with each option's full
-dotted path, so a bad value ends as one error line (not tyro's box).
+dotted path, so a bad value ends as one error line (not tyro's box); what tyro itself refuses (an unknown
+option, a value of the wrong type) is one line too (`gazereg.runtime.tyro_errors`).
 
 Resuming: `check_same_config` refuses to continue a folder made with another configuration, listing every
 changed key (`optim.lr: 0.001 -> 0.002`) except the execution-only keys that the caller allows to change.
@@ -30,6 +31,7 @@ from typing import Any, ClassVar, TypeVar
 
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_text
+from gazereg.runtime.tyro_errors import tyro_errors_as_usage
 
 T = TypeVar("T")
 
@@ -120,11 +122,30 @@ def parse(presets: dict[str, Callable[[], T]], argv: Sequence[str], prog: str, d
     doc = f"{description}\nPreset: {name} (choose with --preset; one of {', '.join(presets)})."
     token = _DEFER_VALIDATION.set(True)
     try:
-        cfg = tyro.cli(type(base), default=base, args=rest, prog=prog, description=doc)
+        with tyro_errors_as_usage(known_options(base), rest, prog):
+            cfg = tyro.cli(type(base), default=base, args=rest, prog=prog, description=doc)
     finally:
         _DEFER_VALIDATION.reset(token)
     validate_tree(cfg)
     return cfg
+
+
+# ----- tyro's refusals as one line ------------------------------------------------------------------------
+def known_options(cfg: Any, prefix: str = "") -> list[str]:
+    """Every option a (nested) dataclass config takes on the command line, as typed (`--train.batch-size`,
+    booleans also as `--no-NAME`, a `Choice` field's `--PATH.type`), plus `--preset` and `--help`."""
+    out = [] if prefix else ["--preset", "--help"]
+    for f in dataclasses.fields(cfg):
+        value, path = getattr(cfg, f.name), prefix + f.name
+        if CHOICE_KEY in f.metadata:
+            out.append(option(path + ".type"))
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            out += known_options(value, path + ".")
+        elif isinstance(value, bool):
+            out += [option(path), "--" + (prefix + "no-" + f.name).replace("_", "-")]
+        else:
+            out.append(option(path))
+    return out
 
 
 # ----- validation -----------------------------------------------------------------------------------------
