@@ -8,6 +8,7 @@ EvalConfig(episodes=25, robustness_episodes=10).seeds("dim:0.7")   # range(1000,
 
 from __future__ import annotations
 
+import difflib
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -15,6 +16,7 @@ from pathlib import Path
 from typing import Literal
 
 from gazereg.envs.base import UnknownSimulator, simulator
+from gazereg.envs.libero.setup import import_libero, libero_available, resolve_task
 from gazereg.envs.perturbations import parse_perturbation
 from gazereg.runtime.config import Validated, option, require_entries, require_number
 from gazereg.runtime.errors import UsageError
@@ -130,6 +132,35 @@ def presets() -> dict[str, Callable[[], EvalConfig]]:
             conditions=ROBUSTNESS_CONDITIONS,
         ),
     }
+
+
+def check_tasks(env: str, tasks: Sequence[str], flag: str = "--tasks") -> None:
+    """Refuse, before any work starts, a task simulator `env` does not register: a UsageError naming `flag`,
+    one line. Meta-World: against its v3 tasks, with the three closest names; LIBERO: each spec resolved by
+    LIBERO (a suite, `suite/index` or `suite/name`). Also a UsageError when the simulator is not installed."""
+    if env == "metaworld":
+        try:  # Meta-World's own registry (gazereg.envs.metaworld.env reads the same); an optional extra
+            from metaworld.env_dict import ALL_V3_ENVIRONMENTS
+        except ImportError as e:
+            raise UsageError(f"--env metaworld: Meta-World is not installed ({e})") from None
+        known = list(ALL_V3_ENVIRONMENTS)
+        for task in tasks:
+            if task not in known:
+                close = ", ".join(difflib.get_close_matches(task, known, n=3, cutoff=0.0))
+                raise UsageError(
+                    f"{flag}: unknown Meta-World task {task!r}; closest: {close} ({len(known)} v3 tasks)"
+                )
+    elif env == "libero":
+        ok, why = libero_available()
+        if not ok:
+            raise UsageError(f"--env libero: {why}")
+        import_libero(None)
+        for task in tasks:
+            try:
+                resolve_task(task)
+            except (KeyError, ValueError) as e:
+                reason = " ".join(str(e.args[0] if e.args else e).split())
+                raise UsageError(f"{flag}: {task!r}: {reason[:300]}") from None
 
 
 def parse_checkpoints(items: Sequence[str], option: str = "--checkpoints") -> dict[str, Path]:

@@ -41,7 +41,7 @@ from gazereg.attention.probe import ProbeSpec
 from gazereg.envs.base import Env, env_class, simulator
 from gazereg.envs.cache import WORKER_ENVS, EnvCache
 from gazereg.envs.perturbations import parse_perturbation
-from gazereg.evaluation.config import EvalConfig, parse_checkpoints, presets
+from gazereg.evaluation.config import EvalConfig, check_tasks, parse_checkpoints, presets
 from gazereg.evaluation.summary import format_table, summarize
 from gazereg.patches import grid_to_image
 from gazereg.policies import load_policy
@@ -296,11 +296,19 @@ def run_jobs(
     return [results[i] for i in range(len(jobs))]
 
 
+def preflight(cfg: EvalConfig, flag_prefix: str = "") -> dict[str, Path]:
+    """Everything `evaluate` can check before its first rollout: the tasks against the simulator's registry
+    (`check_tasks`), then the checkpoints (`parse_checkpoints`); returns {name: checkpoint folder}. A bad one
+    is a UsageError naming its option (after `flag_prefix`, e.g. "eval.")."""
+    check_tasks(cfg.env, cfg.tasks, f"--{flag_prefix}tasks")
+    return parse_checkpoints(cfg.checkpoints, f"--{flag_prefix}checkpoints")
+
+
 def evaluate(cfg: EvalConfig, progress: bool = True) -> dict[str, Any]:
     """Evaluate every checkpoint; writes and returns the evaluation record (eval_info.json). Checkpoints that
-    are not saved policies are refused first (`parse_checkpoints`: UsageError naming --checkpoints), then the
+    are not saved policies and tasks the simulator does not know are refused first (`preflight`), then the
     temporaries that killed writers left in `cfg.out` are removed."""
-    arms = parse_checkpoints(cfg.checkpoints)
+    arms = preflight(cfg)
     jobs = make_jobs(cfg, arms)
     out = Path(cfg.out)
     sweep_stale_temps(out)

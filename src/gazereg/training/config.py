@@ -201,6 +201,25 @@ class TrainConfig(Validated):
         require_choice(self.device, f"{prefix}device", get_args(Device))
         require_choice(self.mixed_precision, f"{prefix}mixed_precision", get_args(Precision))
         require_choice(self.logger, f"{prefix}logger", get_args(LoggerKind))
+        check_layers(self.gaze.layers, self.policy, prefix)
+
+
+def check_layers(layers: tuple[int, ...], policy: PolicyConfig, prefix: str = "") -> None:
+    """UsageError naming `--gaze.layers` (after `prefix`) when an id is outside the layers of a policy whose
+    config states its depth (an integer `depth` field, e.g. the reference VLA's): ids run 0..depth-1, or
+    -depth..-1 from the end. Other policies check their ids when built (`Policy.resolve_layers`)."""
+    depth = getattr(policy, "depth", None)
+    if not isinstance(depth, int) or isinstance(depth, bool) or depth < 1:
+        return
+    flag = option(prefix + "gaze.layers")
+    if not layers:
+        raise UsageError(f"{flag} is empty: give at least one layer id in {-depth}..{depth - 1}")
+    bad = [layer for layer in layers if not -depth <= layer < depth]
+    if bad:
+        raise UsageError(
+            f"{flag} {' '.join(map(str, bad))} is out of range for a {depth}-layer policy "
+            f"({option(prefix + 'policy.depth')} {depth}): layer ids run {-depth}..{depth - 1}"
+        )
 
 
 def upgrade_saved(saved: dict[str, Any]) -> dict[str, Any]:

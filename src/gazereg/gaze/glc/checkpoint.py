@@ -4,7 +4,9 @@
   `model_state` holds the state dict, names possibly prefixed `module.` by DDP), read with
   `torch.load(weights_only=True)` (no pickled code runs), a bare state dict, or a `.safetensors` file.
   Loading is strict: any missing, unexpected or mis-shaped entry raises `CheckpointMismatchError`
-  listing all of them.
+  (its lists hold all of them; its message, one line, counts them and names the first of each).
+  A file that is no weights file at all raises `NotAGLCCheckpoint`, one holding pickled code
+  `PickledCodeError` (never loaded); all three are `UsageError`s, so `gazereg` refuses them in one line.
 * `save_glc(model, cfg, folder)` / `load_glc(folder)`: our own format, `model.safetensors` +
   `config.json`, each written atomically.
 """
@@ -12,13 +14,16 @@
 from __future__ import annotations
 
 import json
+import pickle
 from collections.abc import Mapping
 from pathlib import Path
 
 import torch
+from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from gazereg.gaze.glc.model import GLC, GLCConfig
+from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_path
 
 WEIGHTS_NAME = "model.safetensors"
@@ -26,8 +31,17 @@ CONFIG_NAME = "config.json"
 _PREFIXES = ("module.", "model.")
 
 
-class CheckpointMismatchError(RuntimeError):
-    """A checkpoint's entries do not match the model; `missing`, `unexpected` and `mismatched` list them."""
+class NotAGLCCheckpoint(UsageError):
+    """A file given as GLC weights that is not GLC weights (one line naming the file and what it is not)."""
+
+
+class PickledCodeError(NotAGLCCheckpoint, pickle.UnpicklingError):
+    """A checkpoint file whose pickle would run code (`torch.load(weights_only=True)` refused it)."""
+
+
+class CheckpointMismatchError(NotAGLCCheckpoint):
+    """A checkpoint's entries do not match the model; `missing`, `unexpected` and `mismatched` list them all,
+    the message (one line) counts them and names the first of each."""
 
     def __init__(
         self,
@@ -37,13 +51,23 @@ class CheckpointMismatchError(RuntimeError):
         source: str = "",
     ) -> None:
         self.missing, self.unexpected, self.mismatched = missing, unexpected, mismatched
-        where = f" {source}" if source else ""
-        lines = [f"checkpoint{where} does not match the model:"]
-        lines.append(f"  missing ({len(missing)}): {missing}")
-        lines.append(f"  unexpected ({len(unexpected)}): {unexpected}")
-        shapes = [f"{k}: checkpoint {tuple(a)} vs model {tuple(b)}" for k, a, b in mismatched]
-        lines.append(f"  mis-shaped ({len(mismatched)}): {shapes}")
-        super().__init__("\n".join(lines))
+        where = source or "the checkpoint"
+        parts = []
+        if missing:
+            parts.append(f"{len(missing)} expected weights missing (first: {missing[0]!r})")
+        if unexpected:
+            parts.append(f"{len(unexpected)} unexpected (first: {unexpected[0]!r})")
+        if mismatched:
+            k, a, b = mismatched[0]
+            parts.append(
+                f"{len(mismatched)} mis-shaped (first: {k!r}, {tuple(a)} in the file, {tuple(b)} in the model)"
+            )
+        what = (
+            "holds a GLC of another configuration"
+            if not (missing or unexpected)
+            else "is not a GLC checkpoint"
+        )
+        super().__init__(f"{where} {what}: {'; '.join(parts)}")
 
 
 def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
@@ -51,15 +75,38 @@ def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
 
     `.safetensors` files are read with safetensors; anything else with `torch.load(weights_only=True)`.
     A dict with a `model_state` (SlowFast) or `state_dict` entry is unwrapped; a leading `module.`
-    prefix (DDP) is removed from every name when all names carry it.
+    prefix (DDP) is removed from every name when all names carry it. `PickledCodeError` for a pickle that
+    would run code, `NotAGLCCheckpoint` for a file that is neither format (or holds no dict of tensors).
     """
     path = Path(path)
     if path.suffix == ".safetensors":
-        sd: Mapping = load_file(str(path), device="cpu")
+        try:
+            sd: Mapping = load_file(str(path), device="cpu")
+        except SafetensorError as e:
+            raise NotAGLCCheckpoint(f"{path} is not a readable safetensors file ({_first_line(e)})") from None
     else:
-        obj = torch.load(path, map_location="cpu", weights_only=True)
+        try:
+            obj = torch.load(path, map_location="cpu", weights_only=True)
+        except pickle.UnpicklingError as e:
+            if str(e).startswith("Weights only load failed"):
+                raise PickledCodeError(
+                    f"{path} holds pickled code, which gazereg never loads; give a safetensors or "
+                    "weights-only file"
+                ) from None
+            raise NotAGLCCheckpoint(f"{path} is not a torch weights file ({_first_line(e)})") from None
+        except OSError:
+            raise
+        except (
+            Exception
+        ) as e:  # torch.load's ways of failing on other bytes: EOFError, KeyError, struct.error...
+            detail = f": {_first_line(e)}" if isinstance(e, RuntimeError | ValueError) else ""
+            raise NotAGLCCheckpoint(
+                f"{path} is not a torch weights file (empty, truncated or another format{detail})"
+            ) from None
         if not isinstance(obj, Mapping):
-            raise TypeError(f"{path}: expected a dict, got {type(obj).__name__}")
+            raise NotAGLCCheckpoint(
+                f"{path} is not a GLC checkpoint: it holds a {type(obj).__name__}, not a dict"
+            )
         sd = obj
         for key in ("model_state", "state_dict", "model"):
             if key in obj and isinstance(obj[key], Mapping):
@@ -70,6 +117,12 @@ def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
         if sd and all(k.startswith(prefix) for k in sd):
             sd = {k[len(prefix) :]: v for k, v in sd.items()}
     return dict(sd)
+
+
+def _first_line(error: BaseException) -> str:
+    """An error's message cut to its first line and 120 characters (torch's run on for paragraphs)."""
+    text = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+    return text if len(text) <= 120 else text[:117] + "..."
 
 
 def check_state_dict(
