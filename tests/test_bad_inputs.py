@@ -42,6 +42,8 @@ BAD_INPUTS = [
             "{tmp}/run",
             "--gaze.prior",
             "nosuch",
+            "--batch-size",
+            "4",
         ],
         2,
         "nosuch",
@@ -63,6 +65,12 @@ BAD_INPUTS = [
     (["eval", "--conditions", "dim:2"], 2, "--conditions: 'dim:2'"),
     (["eval", "--checkpoints", "{tmp}/none", "--out", "{tmp}/eval"], 2, "--checkpoints"),
     (["eval", "--checkpoints", "{tmp}", "--out", "{tmp}/eval"], 2, "not a saved policy folder"),
+    pytest.param(
+        ["eval", "--tasks", "reach-v3", "nosuch-v3", "--checkpoints", "{tmp}", "--out", "{tmp}/eval"],
+        2,
+        "--tasks: unknown Meta-World task 'nosuch-v3'; closest: ",
+        marks=needs_metaworld,
+    ),
     # gazereg collect
     pytest.param(
         ["collect", "--tasks", "juggle-v3", "--out", "{tmp}/demos"], 2, "juggle-v3", marks=needs_metaworld
@@ -85,6 +93,85 @@ BAD_INPUTS = [
     (["experiment", "--figure-frames", "0"], 2, "--figure-frames must be"),
     (["experiment", "--data-from"], 2, "--data-from needs the run folder"),
     (["experiment", "--data-from", "{tmp}", "--out", "{tmp}/new"], 2, "holds no experiment (no config.json)"),
+    # options tyro refuses (unknown, of the wrong type, outside a field's choices): one line naming the option
+    (["train", "--train.stepz", "10"], 2, "unknown option --train.stepz (did you mean --steps?)"),
+    (["train", "--stepz", "10"], 2, "unknown option --stepz (did you mean --steps?)"),
+    (["experiment", "--train.stepz", "10"], 2, "unknown option --train.stepz (did you mean --train.steps?)"),
+    (["train", "stray"], 2, "unexpected argument 'stray'"),
+    (["train", "--steps", "2.5"], 2, "--steps must be an integer, got '2.5'"),
+    (["train", "--gaze.weight", "abc"], 2, "--gaze.weight must be a number, got 'abc'"),
+    (["train", "--gaze.layers", "1", "x"], 2, "--gaze.layers must be integers, got '1 x'"),
+    (["train", "--device", "gpu"], 2, "--device must be one of auto, cpu, cuda, got 'gpu'"),
+    (["train", "--optim.betas", "0.9"], 2, "--optim.betas needs 2 value(s)"),
+    (["priors", "--aggregation.past", "-1"], 2, "--aggregation.past must be an integer >= 0, got -1"),
+    (["priors", "--aggregation.kernel", "box"], 2, "--aggregation.kernel must be one of uniform, gaussian"),
+    (["experiment", "--aggregation.past", "-1"], 2, "--aggregation.past must be an integer >= 0, got -1"),
+    # layers the policy does not have: refused when the config is built
+    (
+        ["train", "--preset", "smoke", "--gaze.layers", "7"],
+        2,
+        "--gaze.layers 7 is out of range for a 2-layer policy (--policy.depth 2): layer ids run -2..1",
+    ),
+    (
+        ["experiment", "--preset", "smoke", "--out", "{tmp}/exp", "--train.gaze.layers", "-3"],
+        2,
+        "--train.gaze.layers -3 is out of range for a 2-layer policy",
+    ),
+    # an experiment's preflight: tasks and a given GLC checkpoint, before the demos stage
+    pytest.param(
+        ["experiment", "--preset", "smoke", "--out", "{tmp}/exp", "--tasks", "nosuch-v3"],
+        2,
+        "--tasks: unknown Meta-World task 'nosuch-v3'; closest: ",
+        marks=needs_metaworld,
+    ),
+    pytest.param(
+        ["experiment", "--preset", "smoke", "--out", "{tmp}/exp", "--glc.checkpoint", "{glc_code}"],
+        2,
+        "--glc.checkpoint {glc_code} holds pickled code, which gazereg never loads; give a safetensors or",
+        marks=needs_metaworld,
+    ),
+    pytest.param(
+        [
+            "experiment",
+            "--preset",
+            "smoke",
+            "--out",
+            "{tmp}/exp",
+            "--glc.checkpoint",
+            "{glc_other}",
+            "--glc.config",
+            "small",
+        ],
+        2,
+        "--glc.checkpoint {glc_other} is not a GLC checkpoint: 221 expected weights missing (first: "
+        "'blocks.0.attn.norm_k.bias'); 1 unexpected (first: 'head.weight')",
+        marks=needs_metaworld,
+    ),
+    pytest.param(
+        ["experiment", "--preset", "smoke", "--out", "{tmp}/exp", "--glc.checkpoint", "{glc_junk}"],
+        2,
+        "--glc.checkpoint {glc_junk} is not a torch weights file",
+        marks=needs_metaworld,
+    ),
+    pytest.param(
+        ["experiment", "--preset", "smoke", "--out", "{tmp}/exp", "--glc.checkpoint", "{tmp}/none.pt"],
+        2,
+        "--glc.checkpoint {tmp}/none.pt: GLC checkpoint",
+        marks=needs_metaworld,
+    ),
+    pytest.param(  # the preflight runs before --data-from copies anything
+        ["experiment", "--preset", "smoke", "--data-from", "{runs}/a", "--out", "{tmp}/exp"]
+        + ["--tasks", "nosuch-v3"],
+        2,
+        "--tasks: unknown Meta-World task 'nosuch-v3'",
+        marks=needs_metaworld,
+    ),
+    (
+        ["priors", "--store", "{store}", "--camera", "cam", "--source", "glc"]
+        + ["--source-params", "checkpoint={glc_code}"],
+        2,
+        "{glc_code} holds pickled code, which gazereg never loads",
+    ),
     # gazereg glc
     (["glc", "train", "--optim.steps", "0"], 2, "--optim.steps must be"),
     (["glc", "train", "--optim.lr", "0"], 2, "--optim.lr must be"),
@@ -148,13 +235,35 @@ def _write_run(root: Path, arm: str) -> None:
     (root / "eval" / "eval_info.json").write_text(json.dumps({"episodes": [episode]}))
 
 
+class _Code:
+    """Pickles as a call of `print`: a checkpoint file holding code."""
+
+    def __reduce__(self):
+        return (print, ("this must not run",))
+
+
+def _write_glc_files(root: Path) -> dict[str, str]:
+    """Files given as GLC checkpoints that are none: pickled code, other weights, bytes of no format."""
+    import pickle
+
+    import torch
+
+    root.mkdir(parents=True)
+    with open(root / "code.pt", "wb") as f:
+        pickle.dump({"model_state": {}, "x": _Code()}, f, protocol=2)
+    torch.save({"model_state": {"head.weight": torch.zeros(2)}}, root / "other.pt")
+    (root / "junk.pt").write_bytes(b"junk")
+    return {f"glc_{name}": str(root / f"{name}.pt") for name in ("code", "other", "junk")}
+
+
 @pytest.fixture(scope="module")
 def places(tmp_path_factory) -> dict[str, str]:
     root = tmp_path_factory.mktemp("bad_inputs")
     _write_store(root / "store")
     _write_run(root / "runs" / "a", "baseline")
     _write_run(root / "runs" / "b", "gaze")
-    return {"store": str(root / "store"), "runs": str(root / "runs")}
+    glc = _write_glc_files(root / "glc")
+    return {"store": str(root / "store"), "runs": str(root / "runs"), **glc}
 
 
 @pytest.mark.parametrize(
@@ -163,6 +272,8 @@ def places(tmp_path_factory) -> dict[str, str]:
 def test_a_bad_input_ends_with_one_line_naming_it(
     argv, status, message, places, tmp_path, capsys, monkeypatch
 ):
+    """Exactly one line on stderr (no box, no traceback) that names the problem; and nothing written: a
+    command refuses its input before it starts work (`--out` is not created)."""
     monkeypatch.delenv("GAZEREG_DEBUG", raising=False)
     args = [a.format(tmp=tmp_path, **places) for a in argv]
     assert cli.main(args) == status
@@ -170,7 +281,9 @@ def test_a_bad_input_ends_with_one_line_naming_it(
     lines = err.splitlines()
     assert len(lines) == 1, err
     assert lines[0].startswith(f"gazereg {args[0]}: error: "), err
-    assert message in lines[0] and "Traceback" not in err
+    assert message.format(tmp=tmp_path, **places) in lines[0] and "Traceback" not in err
+    if status == 2 and "--out" in args:
+        assert not Path(args[args.index("--out") + 1]).exists(), "refused only after work started"
 
 
 def test_an_unknown_command_is_named_before_the_usage(capsys):

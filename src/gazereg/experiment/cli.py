@@ -11,6 +11,7 @@ from pathlib import Path
 
 from gazereg.experiment import reuse
 from gazereg.experiment.config import PRESETS
+from gazereg.experiment.preflight import preflight
 from gazereg.experiment.runner import Experiment
 from gazereg.experiment.runner import __doc__ as RUNNER_DOC
 from gazereg.runtime.config import parse, split_preset
@@ -22,9 +23,10 @@ def main(argv: list[str] | None = None) -> int:
     preset, _ = split_preset(args, "quick")
     cfg = parse(PRESETS, args, prog="gazereg experiment", description=f"{RUNNER_DOC}\n{reuse.__doc__}")
     t0 = time.perf_counter()
+    preflight(cfg)  # before --data-from copies anything
     if source is not None:
         reuse.reuse_data(cfg, preset, source)
-    Experiment(cfg, preset).run()
+    Experiment(cfg, preset).run(check=False)
     print((Path(cfg.out) / "report.md").read_text())
     print(
         f"experiment finished in {(time.perf_counter() - t0) / 60:.1f} min; report: {Path(cfg.out) / 'report.md'}"

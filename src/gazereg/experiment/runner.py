@@ -9,9 +9,18 @@
 
 How long each takes on 2 cores: the README's preset table.
 
+Before the first stage, `preflight` checks everything that can be checked without doing the work (tasks,
+the training tasks, a given GLC checkpoint, every gaze source; the options themselves are checked when the
+configuration is built, --train.gaze.layers against the policy's depth among them): a mistake is one line,
+exit 2, before anything is collected.
+
 Stages (each writes into `out/` and a marker `out/stages/<name>.json`; a rerun skips finished stages, so a
 killed run loses at most the stage it was in; training resumes from its last checkpoint and evaluation
-from its episode log, episodes.jsonl):
+from its episode log, episodes.jsonl). A stage's time (`seconds` in its marker, the report's stage_times_s)
+is the sum over every attempt at it, interrupted ones included: Ctrl-C and SIGTERM save the interrupted
+attempt's time as the run unwinds (the command then says which stage stopped: "terminated (SIGTERM) during
+stage eval; rerun the same command to resume", exit 143), a SIGKILL loses at most the last 30 s of it
+(`gazereg.runtime.clock.ResumableClock`):
   demos      scripted experts on training setups (seeds 0..demos_per_task-1) + held-out setups for alignment
              (`gazereg.experiment.demos`)
   priors     one prior per gaze source an arm needs (the gaze source, and its perturbed controls); for the glc
@@ -50,6 +59,7 @@ from gazereg.experiment.arms import PriorSpec, arm_prior, gaze_prior, gaze_targe
 from gazereg.experiment.config import EXECUTION_KEYS, ExperimentConfig
 from gazereg.experiment.demos import collection_result, demo_collections, demo_stores
 from gazereg.experiment.glc import train_glc, train_glc_folds
+from gazereg.experiment.preflight import preflight
 from gazereg.experiment.records import report_spec, with_added_keys
 from gazereg.gaze.priors import PriorsConfig, make_priors
 from gazereg.policies import load_policy
@@ -58,7 +68,7 @@ from gazereg.report.figures import attention_panels, plot_attention
 from gazereg.report.ids import RunId
 from gazereg.runtime.clock import ResumableClock
 from gazereg.runtime.config import check_same_config, save_config, to_dict
-from gazereg.runtime.errors import UsageError
+from gazereg.runtime.errors import Terminated, UsageError, annotate_interruption
 from gazereg.runtime.io import atomic_write_json, read_text, sweep_stale_temps
 from gazereg.runtime.pool import exit_with_parent
 from gazereg.training.checkpoint import latest_checkpoint, list_checkpoints
@@ -139,8 +149,12 @@ class Experiment:
             results[stage], self.times[stage] = prev, prev.get("seconds", 0.0)
         return results
 
-    def run(self) -> dict[str, Any]:
+    def run(self, check: bool = True) -> dict[str, Any]:
+        """Every stage not finished yet, then the report; `check`: run `preflight` first (the command runs it
+        itself before copying `--data-from`)."""
         self.check_resumable()
+        if check:
+            preflight(self.cfg)
         self.out.mkdir(parents=True, exist_ok=True)
         sweep_stale_temps(self.out)  # what killed writers of an earlier attempt left
         save_config(self.cfg, self.out / "config.json")
@@ -154,8 +168,12 @@ class Experiment:
                 continue
             log.info("stage %s ...", stage)
             # counts the attempts a kill interrupted too, so a resumed stage reports its whole time
-            with ResumableClock(self.out / "stages" / f"{stage}.clock.json") as clock:
-                res = getattr(self, f"stage_{stage}")(results)
+            try:
+                with ResumableClock(self.out / "stages" / f"{stage}.clock.json") as clock:
+                    res = getattr(self, f"stage_{stage}")(results)
+            except (KeyboardInterrupt, Terminated) as e:  # the clock has saved this attempt's time
+                annotate_interruption(e, f"stage {stage}", "rerun the same command to resume")
+                raise
             self.times[stage] = clock.seconds
             results[stage] = self.finish(stage, res, self.times[stage])
             clock.clear()

@@ -3,17 +3,29 @@
     exit 2  bad usage: an option, a name or a path the user gave is wrong (`UsageError`, a missing path)
     exit 1  a failure: the command was used right but could not finish (bad data, a crash, a non-finite loss)
 
+    exit 130  interrupted (Ctrl-C): `PROG: interrupted[ during WHAT][; ADVICE]`
+    exit 143  terminated (SIGTERM): `PROG: terminated (SIGTERM)[ during WHAT][; ADVICE]`
+
 The traceback is printed only with `--verbose` (anywhere on the command line) or GAZEREG_DEBUG=1. Library code
 raises ordinary exceptions; a user mistake raises `UsageError` (or a subclass) with a message that names the
 option or file and what is wrong with it.
+
+While `report_errors` runs a command, SIGTERM raises `Terminated` in the main thread (a BaseException, like
+KeyboardInterrupt), so `with` blocks and `finally` clauses run as the command unwinds: resumable work saves
+its state and its clock (`gazereg.runtime.clock.ResumableClock`). Code that knows what was interrupted says so
+with `annotate_interruption` (the experiment runner: the stage, and that rerunning resumes). A second SIGTERM
+while unwinding ends the process at once, as SIGTERM's default does.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import sys
+import threading
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 VERBOSE_FLAG = "--verbose"
 DEBUG_ENV = "GAZEREG_DEBUG"
@@ -41,13 +53,64 @@ def split_verbose(argv: list[str]) -> tuple[list[str], bool]:
     return [a for a in argv if a != VERBOSE_FLAG], verbose
 
 
-def report_errors(prog: str, entry: Callable[[list[str]], int | None], argv: list[str], verbose: bool) -> int:
-    """Run `entry(argv)`; an exception becomes `prog: error: MESSAGE` on stderr and its exit status."""
+class Terminated(BaseException):
+    """SIGTERM arrived while a command ran (raised in the main thread by `sigterm_raises`)."""
+
+
+TERMINATED_STATUS = 128 + signal.SIGTERM
+INTERRUPTED_STATUS = 128 + signal.SIGINT
+
+
+def annotate_interruption(error: BaseException, during: str, advice: str = "") -> None:
+    """Say what an interruption (`Terminated`, KeyboardInterrupt) stopped, e.g. during="stage eval",
+    advice="rerun the same command to resume"; the innermost annotation wins."""
+    if not getattr(error, "gazereg_during", ""):
+        error.gazereg_during = during  # type: ignore[attr-defined]
+        error.gazereg_advice = advice  # type: ignore[attr-defined]
+
+
+def interruption_line(prog: str, error: BaseException) -> str:
+    """`PROG: terminated (SIGTERM) during stage eval; rerun the same command to resume` (or `interrupted`)."""
+    what = "terminated (SIGTERM)" if isinstance(error, Terminated) else "interrupted"
+    during, advice = getattr(error, "gazereg_during", ""), getattr(error, "gazereg_advice", "")
+    return f"{prog}: {what}" + (f" during {during}" if during else "") + (f"; {advice}" if advice else "")
+
+
+@contextlib.contextmanager
+def sigterm_raises() -> Iterator[None]:
+    """While the block runs in the main thread: SIGTERM raises `Terminated` there, once (a second SIGTERM
+    gets the default action: the process ends). A process forked inside the block that inherited the handler
+    ends on SIGTERM as by default. Elsewhere (another thread) the block runs unchanged."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    owner = os.getpid()
+
+    def handler(signum: int, frame: object) -> None:
+        signal.signal(signum, signal.SIG_DFL)
+        if os.getpid() != owner:
+            os.kill(os.getpid(), signum)
+            return
+        raise Terminated()
+
+    previous = signal.signal(signal.SIGTERM, handler)
     try:
-        return int(entry(argv) or 0)
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted", file=sys.stderr)
-        return 130
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+
+
+def report_errors(prog: str, entry: Callable[[list[str]], int | None], argv: list[str], verbose: bool) -> int:
+    """Run `entry(argv)`; an exception becomes `prog: error: MESSAGE` on stderr and its exit status, Ctrl-C
+    and SIGTERM one line each (`interruption_line`) and exit 130 and 143."""
+    try:
+        with sigterm_raises():
+            return int(entry(argv) or 0)
+    except (KeyboardInterrupt, Terminated) as e:
+        if verbose:
+            traceback.print_exc()
+        print(interruption_line(prog, e), file=sys.stderr)
+        return TERMINATED_STATUS if isinstance(e, Terminated) else INTERRUPTED_STATUS
     except Exception as e:
         if verbose:
             traceback.print_exc()
