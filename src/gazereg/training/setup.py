@@ -4,10 +4,8 @@
 (`gazereg.policies.base`); `setup` adds the accelerator, the optimiser and LR schedule, the EMA, the restored
 checkpoint (with `resume`) and the data loader, and returns them as one `Run`.
 
-`build` refuses (one line, `UsageError`) before any data is read: a batch larger than the training samples (it
-would repeat samples within a step and allocate for them), and a gaze prior that does not fit what it would
-regularize: a gaze camera the store or the policy does not have, a prior made for another camera than
-`--gaze.camera`, or for frames of another size than the store's (prior.json's camera and image_hw).
+`build` refuses (one line, `UsageError`) before any data is read what gazereg.training.guards checks: a batch
+larger than the training samples and a gaze prior that does not fit what it would regularize.
 
 At the start `setup` removes the temporaries that killed writers left in the run folder. With `resume` it
 reads the newest checkpoint that reads completely (a damaged newer one is skipped with a warning) and refuses
@@ -36,7 +34,7 @@ from gazereg.data.dataset import (
     select_episodes,
     split_episodes,
 )
-from gazereg.data.store import PRIOR_MANIFEST, EpisodeStore
+from gazereg.data.store import EpisodeStore
 from gazereg.losses import WeightSchedule
 from gazereg.policies import Policy, make_policy
 from gazereg.runtime.config import check_same_config, option, save_config, to_dict
@@ -47,6 +45,7 @@ from gazereg.runtime.seeding import seed_everything
 from gazereg.training.checkpoint import CheckpointData, latest_checkpoint, read_resumable, restore_checkpoint
 from gazereg.training.config import EXECUTION_KEYS, TrainConfig, upgrade_saved
 from gazereg.training.ema import EMA
+from gazereg.training.guards import check_batch_size, gaze_camera_for
 from gazereg.training.location import HEAD_NAME, LocationHead, make_location_head
 from gazereg.training.logger import MetricsFile, NullLogger, make_logger
 from gazereg.training.schedule import lr_lambda, param_groups
@@ -69,59 +68,6 @@ class Built:
     attention_grid: tuple[int, int] | None = None
     """(rows, cols) of the policy's patch grid for the gaze camera, the probed attention's (None without a
     prior)"""
-
-
-def check_batch_size(cfg: TrainConfig, store: EpisodeStore, train_eps: list[int], n_val: int) -> None:
-    """Refuse a batch larger than the training samples (frames of the training episodes)."""
-    n = sum(int(store.meta(i)["length"]) for i in train_eps)
-    if cfg.batch_size > n:
-        held = f", {n_val} held out for validation" if n_val else ""
-        raise UsageError(
-            f"{option('batch_size')} {cfg.batch_size} is larger than the {n} training samples of {store.root} "
-            f"({len(train_eps)} episodes{held}); use {option('batch_size')} {n} or less"
-        )
-
-
-def gaze_camera_for(cfg: TrainConfig, store: EpisodeStore, episodes: list[int], pcfg: Any) -> str:
-    """The camera the gaze prior regularizes: --gaze.camera or the one prior.json records. Refused (one line,
-    `UsageError`): a camera the store lacks, one the policy does not see, one other than the prior's, and a
-    prior made on frames of another size than the store's."""
-    name = cfg.gaze.prior
-    assert name is not None
-    info = store.prior_info(name)
-    manifest = store.prior_dir(name) / PRIOR_MANIFEST
-    recorded, asked = info.get("camera"), cfg.gaze.camera
-    in_store = sorted(store.meta(episodes[0])["cameras"])
-    if asked is not None and asked not in in_store:
-        raise UsageError(
-            f"{option('gaze.camera')} {asked}: store {store.root} has no camera {asked!r}; it has "
-            f"{', '.join(in_store)}"
-        )
-    if asked is not None and recorded is not None and asked != recorded:
-        raise UsageError(
-            f"{option('gaze.camera')} {asked}: prior {name!r} was made for camera {recorded!r} ({manifest}) "
-            f"and cannot regularize {asked!r}; make priors for it (gazereg priors --camera {asked} --name ...) "
-            f"or leave {option('gaze.camera')} out"
-        )
-    camera = asked or recorded
-    if camera is None:
-        raise UsageError(f"prior {name!r} records no camera ({manifest}); set {option('gaze.camera')}")
-    cameras = tuple(pcfg.cameras)
-    if camera not in cameras:
-        whose = f"{option('gaze.camera')} {camera}" if asked else f"prior {name!r}'s camera {camera!r}"
-        raise UsageError(
-            f"{option('policy.cameras')} {' '.join(cameras)}: the policy does not see the gaze camera ({whose}); "
-            f"it sees {', '.join(cameras)} of the store's {', '.join(in_store)}: add {camera} to "
-            f"{option('policy.cameras')}"
-        )
-    made_on, have = info.get("image_hw"), tuple(pcfg.camera_hw[cameras.index(camera)])
-    if made_on is not None and tuple(made_on) != have:
-        raise UsageError(
-            f"prior {name!r} was made on {camera!r} frames of {made_on[0]}x{made_on[1]} pixels ({manifest}), "
-            f"but the store's {camera!r} frames are {have[0]}x{have[1]}: recompute it with `gazereg priors "
-            "--overwrite`"
-        )
-    return str(camera)
 
 
 def build(cfg: TrainConfig) -> Built:
