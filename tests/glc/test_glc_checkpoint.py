@@ -93,3 +93,17 @@ def test_save_and_load_roundtrip(tmp_path):
     # a safetensors file loads through the generic entry point too, and strictly
     with pytest.raises(CheckpointMismatchError):
         load_glc_checkpoint(GLC(GLCConfig.full()), folder / "model.safetensors")
+
+
+def test_saved_weights_are_byte_identical_with_an_ordinary_files_mode(tmp_path):
+    """Equal weights give equal bytes (the glc source records the file's SHA-256) and the file gets the mode an
+    ordinary write gives (safetensors' own writer makes it 0600)."""
+    cfg = GLCConfig.small()
+    torch.manual_seed(2)
+    model = GLC(cfg)
+    a = save_glc(model, cfg, tmp_path / "a") / "model.safetensors"
+    b = save_glc(model, cfg, tmp_path / "b") / "model.safetensors"
+    assert a.read_bytes() == b.read_bytes()
+    probe = tmp_path / "probe"
+    probe.write_text("x")
+    assert a.stat().st_mode & 0o777 == probe.stat().st_mode & 0o777

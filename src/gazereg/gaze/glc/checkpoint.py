@@ -20,11 +20,11 @@ from pathlib import Path
 
 import torch
 from safetensors import SafetensorError
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 
 from gazereg.gaze.glc.model import GLC, GLCConfig
 from gazereg.runtime.errors import UsageError
-from gazereg.runtime.io import atomic_path
+from gazereg.runtime.io import atomic_path, save_safetensors
 
 WEIGHTS_NAME = "model.safetensors"
 CONFIG_NAME = "config.json"
@@ -155,10 +155,9 @@ def save_glc(model: GLC, cfg: GLCConfig | None, folder: str | Path) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     cfg = cfg if cfg is not None else model.cfg
     tensors = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
-    with atomic_path(folder / WEIGHTS_NAME) as tmp:
-        # one metadata key: safetensors writes the metadata map in arbitrary order, and the `glc` source
-        # records this file's SHA-256, which must not change when the same weights are saved again
-        save_file(tensors, str(tmp), metadata={"format": "pt"})
+    # byte-identical for equal weights (the `glc` source records this file's SHA-256, which must not change
+    # when the same weights are saved again) and with an ordinary file's mode
+    save_safetensors(tensors, folder / WEIGHTS_NAME, metadata={"format": "pt"})
     with atomic_path(folder / CONFIG_NAME) as tmp:
         tmp.write_text(cfg.to_json() + "\n")
     return folder
