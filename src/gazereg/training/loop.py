@@ -44,13 +44,13 @@ from typing import Any
 
 import torch
 from torch import Tensor, nn
-from tqdm import tqdm
 
 from gazereg.attention.probe import AttentionProbe
 from gazereg.losses import gaze_loss
 from gazereg.metrics import alignment_metrics
 from gazereg.policies import Policy
 from gazereg.runtime.config import parse, to_dict
+from gazereg.runtime.progress import Progress
 from gazereg.training.checkpoint import prune_checkpoints, save_checkpoint
 from gazereg.training.config import PRESETS, TrainConfig
 from gazereg.training.location import HEAD_NAME, FeatureCapture, LocationHead, average_gradients
@@ -60,6 +60,13 @@ from gazereg.training.setup import Run, setup
 log = logging.getLogger(__name__)
 
 Callback = Callable[[int, nn.Module], "dict[str, Any] | None"]
+SHOWN = {
+    "loss/action": "action",
+    "loss/gaze_kl": "gaze_kl",
+    "loss/location_kl": "location_kl",
+    "val/gaze_kl": "val_gaze_kl",
+}
+"""the metrics the progress line shows after each logged step (metric -> name on the line)"""
 
 
 @dataclass
@@ -308,37 +315,35 @@ def train(cfg: TrainConfig, callbacks: Sequence[Callback] = ()) -> dict[str, Any
     evaluation policy (EMA weights if enabled) in eval mode; a returned dict is merged into the metrics."""
     run = setup(cfg)
     cfg = run.cfg
-    show = run.main and cfg.progress
-    bar = tqdm(total=run.stop, initial=run.start, desc="train", disable=not show, dynamic_ncols=True)
+    label, show = f"train {Path(cfg.run_dir).name}", run.main and cfg.progress
     if run.main:
         log_start(run)
     interval, record, last_ckpt = Interval(), {}, None
     t_prev = time.perf_counter()
     run.model.train()
-    for i, batch in zip(range(run.start, run.stop), run.loader):
-        t0 = time.perf_counter()
-        interval.t_data += t0 - t_prev
-        out = step(run, i, batch)
-        interval.add(out.terms)
-        t_prev = time.perf_counter()
-        interval.t_step += t_prev - t0
-        done = i + 1
-        bar.update(1)
-        is_log = done % cfg.log_every == 0 or done == run.stop
-        is_eval = done % cfg.eval_every == 0 or done == run.stop
-        if is_log or is_eval:
-            record, interval = log_record(run, done, out, interval), Interval()
-        if is_eval:
-            record.update(evaluate(run, done, callbacks))
-        if (is_log or is_eval) and run.main:
-            run.metrics.write(record)
-            run.logger.log(record, done)
-            shown = ("loss/action", "loss/gaze_kl", "loss/location_kl", "val/gaze_kl")
-            bar.set_postfix({k.split("/")[-1]: f"{record[k]:.4f}" for k in shown if k in record})
-        if done % cfg.save_every == 0 or done == run.stop:
-            last_ckpt = checkpoint(run, done)
-        t_prev = time.perf_counter()
-    bar.close()
+    with Progress(label, run.stop, "steps", done=run.start, enabled=show) as bar:
+        for i, batch in zip(range(run.start, run.stop), run.loader):
+            t0 = time.perf_counter()
+            interval.t_data += t0 - t_prev
+            out = step(run, i, batch)
+            interval.add(out.terms)
+            t_prev = time.perf_counter()
+            interval.t_step += t_prev - t0
+            done = i + 1
+            bar.update(1)
+            is_log = done % cfg.log_every == 0 or done == run.stop
+            is_eval = done % cfg.eval_every == 0 or done == run.stop
+            if is_log or is_eval:
+                record, interval = log_record(run, done, out, interval), Interval()
+            if is_eval:
+                record.update(evaluate(run, done, callbacks))
+            if (is_log or is_eval) and run.main:
+                run.metrics.write(record)
+                run.logger.log(record, done)
+                bar.note(**{name: f"{record[k]:.4f}" for k, name in SHOWN.items() if k in record})
+            if done % cfg.save_every == 0 or done == run.stop:
+                last_ckpt = checkpoint(run, done)
+            t_prev = time.perf_counter()
     return finish(run, record, last_ckpt)
 
 
