@@ -253,7 +253,7 @@ class Experiment:
             seed=run.seed,
             save_every=every,
             eval_every=min(c.train.eval_every, every),
-            progress=False,
+            progress=True,  # a line per run (gazereg.runtime.progress), from worker processes too
             threads=c.threads_per_run,
             data=replace(c.train.data, store=self.store),
             gaze=replace(
