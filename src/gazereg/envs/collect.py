@@ -51,8 +51,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tqdm import tqdm
-
 from gazereg.data.store import EpisodeStore
 from gazereg.envs.base import Collector, Env, make_collector
 from gazereg.envs.cache import EnvCache
@@ -69,6 +67,7 @@ from gazereg.envs.collect_config import (
 from gazereg.runtime.config import parse, save_config
 from gazereg.runtime.io import atomic_write_json, sweep_stale_temps
 from gazereg.runtime.pool import ResumeLog, WorkerPool, available_cores
+from gazereg.runtime.progress import Progress
 
 SINGLE_THREADED = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 
@@ -261,17 +260,12 @@ def failed_before(attempts: ResumeLog, fp: str) -> set[tuple[str, int]]:
 
 
 def _run(cfg: CollectConfig, scheduler: Scheduler, attempts: ResumeLog, workers: int) -> None:
-    """Roll out the scheduler's jobs in `workers` processes until it wants no more, logging every attempt."""
-    bar = tqdm(
-        total=cfg.episodes * len(cfg.tasks),
-        desc="collect",
-        unit="ep",
-        file=sys.stderr,
-        disable=not cfg.progress,
-    )
+    """Roll out the scheduler's jobs in `workers` processes until it wants no more, logging every attempt;
+    episodes kept of those wanted, with the rate and ETA, on stderr (`gazereg.runtime.progress`)."""
     initial = scheduler.initial_jobs()
-    bar.update(sum(len(tp.resumed) for tp in scheduler.progress))
-    try:
+    resumed = sum(len(tp.resumed) for tp in scheduler.progress)
+    wanted = cfg.episodes * len(cfg.tasks)
+    with Progress(f"collect {cfg.out}", wanted, "episodes", done=resumed, enabled=cfg.progress) as bar:
         worker = functools.partial(CollectWorker, cfg)
         with WorkerPool(worker, workers, child_environ=SINGLE_THREADED) as pool:
             for job in initial:
@@ -286,9 +280,7 @@ def _run(cfg: CollectConfig, scheduler: Scheduler, attempts: ResumeLog, workers:
                 if summary["success"]:
                     bar.update(1)
                 else:
-                    bar.set_postfix(failed=scheduler.failures)
-    finally:
-        bar.close()
+                    bar.note(failed=scheduler.failures)
 
 
 def collect(cfg: CollectConfig) -> CollectReport:

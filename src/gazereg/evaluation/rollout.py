@@ -34,7 +34,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from gazereg.attention import AttentionProbe
 from gazereg.attention.probe import ProbeSpec
@@ -48,6 +47,7 @@ from gazereg.policies import load_policy
 from gazereg.runtime.config import parse, to_dict
 from gazereg.runtime.io import atomic_write_json, sweep_stale_temps
 from gazereg.runtime.pool import ResumeLog, Worker, WorkerPool, fingerprint_files
+from gazereg.runtime.progress import Progress
 from gazereg.viz.overlay import overlay, write_gif
 
 log = logging.getLogger(__name__)
@@ -259,6 +259,7 @@ def run_jobs(
     progress: bool = True,
     log_path: Path | None = None,
     make_worker: Callable[[], Worker[Sequence[Job], list[dict[str, Any]]]] | None = None,
+    label: str = "eval",
 ) -> list[dict[str, Any]]:
     """Run rollouts in `cfg.workers` processes (one when there is at most one batch to run),
     `cfg.lockstep()` environments in lockstep per worker (`group_jobs`).
@@ -267,7 +268,8 @@ def run_jobs(
     it is not run again (one with any missing runs whole), so a killed evaluation resumes where it stopped.
     Records come back in job order.
     `make_worker`: builds a process's worker (default: a `RolloutWorker` with cfg's max_steps, gl_backend, env
-    and lockstep())."""
+    and lockstep()). `progress`: rollouts done of all, with the rate and ETA, on stderr as `label`
+    (`gazereg.runtime.progress`)."""
     prints = {c: fingerprint_files(c) for c in {j.checkpoint for j in jobs}}
     keys = [job_key(j, cfg.max_steps, cfg.env, prints) for j in jobs]
     episodes = ResumeLog(log_path) if log_path is not None else None
@@ -283,7 +285,7 @@ def run_jobs(
     workers = 1 if len(todo) <= 1 else min(cfg.workers, len(todo))
     with (
         WorkerPool(make_worker, workers) as pool,
-        tqdm(total=n_todo, desc="eval", disable=not progress) as bar,
+        Progress(label, len(jobs), "episodes", done=len(jobs) - n_todo, enabled=progress) as bar,
     ):
         for g in todo:
             pool.submit([jobs[i] for i in g], tag=g)
@@ -312,7 +314,7 @@ def evaluate(cfg: EvalConfig, progress: bool = True) -> dict[str, Any]:
     jobs = make_jobs(cfg, arms)
     out = Path(cfg.out)
     sweep_stale_temps(out)
-    records = run_jobs(jobs, cfg, progress, log_path=out / "episodes.jsonl")
+    records = run_jobs(jobs, cfg, progress, log_path=out / "episodes.jsonl", label=f"eval {out}")
     info = {
         "config": to_dict(cfg),
         "checkpoints": {k: str(v) for k, v in arms.items()},

@@ -34,8 +34,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tqdm import tqdm
-
 from gazereg.data.store import PRIOR_MANIFEST, EpisodeStore
 from gazereg.gaze.aggregation import AggregationConfig, aggregate
 from gazereg.gaze.sources import (
@@ -48,6 +46,7 @@ from gazereg.gaze.sources import (
 from gazereg.runtime.config import parse
 from gazereg.runtime.errors import UsageError, report_errors, split_verbose
 from gazereg.runtime.io import LockHeld, file_lock, sweep_stale_temps
+from gazereg.runtime.progress import Progress
 from gazereg.runtime.version import __version__
 
 log = logging.getLogger(__name__)
@@ -194,6 +193,7 @@ def check_settings(store: EpisodeStore, cfg: PriorsConfig, name: str, record: di
 
 def make_priors(cfg: PriorsConfig, rank: int = 0, world: int = 1, progress: bool = True) -> str:
     """Compute and store priors for every episode of the store (this process's shard); returns the name.
+    `progress`: episodes done of this run's, with the rate and ETA, on stderr (`gazereg.runtime.progress`).
 
     The process that finds every episode done writes the manifest (prior.json), last."""
     store = EpisodeStore(cfg.store)
@@ -235,11 +235,14 @@ def _write_priors(
     skipped = len(indices) // max(world, 1) - len(todo)
     if skipped > 0:
         log.info("priors %s: %d episodes already done, skipping them", name, skipped)
-    for i in tqdm(todo, desc=f"priors[{name}]", disable=not progress or not todo):
-        ep = store.read(i, cameras=[cfg.camera])
-        heat, valid = source(ep, cfg.camera, tuple(cfg.size))
-        agg, ok = aggregate(heat, valid, cfg.aggregation)
-        store.write_prior(name, i, agg.numpy(), ok.numpy(), settings=fingerprint)
+    label = f"priors {name} in {store.root}"
+    with Progress(label, len(todo), "episodes", enabled=progress) as bar:
+        for i in todo:
+            ep = store.read(i, cameras=[cfg.camera])
+            heat, valid = source(ep, cfg.camera, tuple(cfg.size))
+            agg, ok = aggregate(heat, valid, cfg.aggregation)
+            store.write_prior(name, i, agg.numpy(), ok.numpy(), settings=fingerprint)
+            bar.update()
     if all(store.has_prior(name, i) for i in indices):
         store.write_prior_info(name, manifest(store, name, record, indices))
 
