@@ -12,7 +12,7 @@ setup:
 demo: setup
 	$(VENV)/bin/gazereg experiment --preset quick
 
-# The main job, then a check that its numbers are the ones docs/results.md shows (CI runs this).
+# The main job, then a check that its numbers match docs/main-job.md's quick block (CI runs this).
 demo-check: demo
 	$(PY) scripts/update_results.py runs/quick --check
 

@@ -204,9 +204,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--results-block",
         type=Path,
         metavar="RUN",
-        help="only write docs/results.md's block --marker from the finished run RUN (no run)",
+        help="only write the docs block --marker (on the docs/*.md page holding it) from the finished run RUN",
     )
-    p.add_argument("--marker", default="lerobot-e2e", help="the docs/results.md block --results-block writes")
+    p.add_argument("--marker", default="lerobot-e2e", help="the docs block --results-block writes")
     p.add_argument("--stage", default="all", help=argparse.SUPPRESS)  # internal: write-lerobot (lane)
     p.add_argument("--npz", type=Path, help=argparse.SUPPRESS)
     p.add_argument("--root", type=Path, help=argparse.SUPPRESS)
@@ -322,18 +322,19 @@ def machine() -> str:
 
 
 def results_block(run: Path, marker: str) -> None:
-    """docs/results.md's block `marker` from a finished run's results.json, its figure copied to
-    docs/figures/<marker>-attention.png."""
+    """The docs block `marker` (on the one docs/*.md page holding it: `update_results.find_page`) from a
+    finished run's results.json, its figure copied to docs/figures/<marker>-attention.png."""
     import shutil
 
-    from update_results import FIGURES, RESULTS_PAGE, replace_block
+    from update_results import DOCS, FIGURES, find_page, replace_block
 
+    page = find_page(ROOT, marker)
     results = json.loads((run / "results.json").read_text())
     figure = ROOT / FIGURES / f"{marker}-attention.png"
     shutil.copyfile(run / "attention.png", figure)
-    block = report_markdown(results, figure=str(figure.relative_to(ROOT / RESULTS_PAGE.parent)))
-    replace_block(ROOT / RESULTS_PAGE, marker, block)
-    print(f"wrote block {marker} of {RESULTS_PAGE} from {run / 'results.json'}")
+    block = report_markdown(results, figure=str(figure.relative_to(ROOT / DOCS)))
+    replace_block(page, marker, block)
+    print(f"wrote block {marker} of {page.relative_to(ROOT)} from {run / 'results.json'}")
 
 
 def main(argv: list[str] | None = None) -> int:

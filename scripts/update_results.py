@@ -1,19 +1,25 @@
-"""Write experiment results into docs/results.md (the block between a marker pair) and the README's headline.
+"""Write experiment results into the docs pages' generated blocks and the README's headline.
 
     python scripts/update_results.py runs/quick                                  # block quick-results
     python scripts/update_results.py runs/paper --marker paper-results           # and the README's headline
     python scripts/update_results.py runs/paper6k --against runs/paper --marker paper-budget
         (run B = runs/paper6k compared with run A = runs/paper on the setups both evaluated)
     python scripts/update_results.py --headline                                  # only the README's headline
-    python scripts/update_results.py --file runs/paper-s0/horizon500/horizon.md --marker paper-horizon
+    python scripts/update_results.py --file runs/paper-s0/horizon500/horizon.md --marker paper-s0-horizon
         (a markdown file a script wrote, e.g. scripts/horizon.py's, as the block)
     python scripts/update_results.py runs/quick --check      # exit 1 if the run's numbers disagree with the block
 
+A block is the text between a `<!-- NAME:start -->` and a `<!-- NAME:end -->` line (each a line of its own) on
+one of the pages docs/*.md; everything outside the marker lines is left as it is. The script finds the page
+that holds a marker by reading every docs/*.md: exactly one page must hold it (none, or two, is an error that
+names the marker and the pages, before anything is written), so a block moves to another page by moving its
+lines, with no change here. The same lookup serves writing, `--check` and the headline.
+
 A run's block is `gazereg.report.results_block` of its report.json, with the run's attention figure copied to
-docs/figures/<marker>-attention.png; a comparison's block is `gazereg.report.compare.compare_markdown`. The
-README's headline block is the head of docs/results.md's paper-results block (its run line and success table,
-`gazereg.report.headline_lines`), copied from there so that the two pages never disagree. Blocks are
-delimited by `<!-- NAME:start -->` and `<!-- NAME:end -->` lines; everything outside them is left as it is.
+docs/figures/<marker>-attention.png (linked as figures/..., relative to the docs pages); a comparison's block
+is `gazereg.report.compare.compare_markdown`. The README's headline block is the head of the paper-results
+block (its run line and success table, `gazereg.report.headline_lines`), copied from whichever page holds
+it so that the two never disagree.
 
 --check: a run's numbers depend on the machine it trained on (`--train.mixed_precision auto` trains in bf16
 where the CPU has avx512_bf16 or amx_bf16, in float32 elsewhere, and torch's kernels differ by ISA level and
@@ -28,6 +34,9 @@ line from the page and from the run's freshly rendered block:
   the attention columns are not tested (their largest differences are printed), nor the verdict lines;
 - a block without a data line (rendered before blocks carried one) fails, saying to regenerate it.
 It prints which comparison it made and why.
+
+Bad input (a marker on no page or on several, a run folder without report.json, a missing --file) is one line
+on stderr, `update_results.py: error: ...`, exit status 2, before any file is written.
 """
 
 from __future__ import annotations
@@ -35,30 +44,73 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import sys
 from pathlib import Path
 
+from gazereg.experiment.compare import compare_runs
 from gazereg.report import results_block
 from gazereg.report.blockdata import DATA_PREFIX, FAMILY_ALPHA, BlockData, agreement, alignment_differences
-from gazereg.report.compare import compare_markdown, compare_runs
+from gazereg.report.compare import compare_markdown
 from gazereg.runtime.hardware import NumericsKey
 from gazereg.runtime.io import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS_PAGE = Path("docs") / "results.md"  # relative to the repository root, like the two below
-FIGURES = Path("docs") / "figures"
+DOCS = Path("docs")  # relative to the repository root, like the two below: its *.md pages hold the blocks
+FIGURES = DOCS / "figures"
 README = Path("README.md")
-HEADLINE_SOURCE = "paper-results"  # the docs/results.md block whose head is the README's headline
+HEADLINE_SOURCE = "paper-results"  # the docs block whose head is the README's headline
 HEADLINE = "headline"  # the README's block
+PROG = "update_results.py"
+
+
+class MarkerError(ValueError):
+    """A marker that no docs page holds, or several do, or a page whose marker lines are not one pair."""
+
+
+def marker_lines(marker: str) -> tuple[str, str]:
+    """The start and end lines (without their newline) of block `marker`."""
+    return f"<!-- {marker}:start -->", f"<!-- {marker}:end -->"
+
+
+def _marker_indices(lines: list[str], marker: str) -> tuple[list[int], list[int]]:
+    """The indices of `lines` that are `marker`'s start line, and those that are its end line (a marker
+    mentioned inside a line of prose is neither)."""
+    start, end = marker_lines(marker)
+    stripped = [line.strip() for line in lines]
+    return [i for i, s in enumerate(stripped) if s == start], [i for i, s in enumerate(stripped) if s == end]
+
+
+def find_page(root: Path, marker: str) -> Path:
+    """The page of `root`/docs/*.md that holds block `marker` (a start or an end line of it); exactly one page
+    must, else `MarkerError` naming the marker and the pages."""
+    pages = [
+        page
+        for page in sorted((root / DOCS).glob("*.md"))
+        if any(_marker_indices(page.read_text().splitlines(), marker))
+    ]
+    if len(pages) == 1:
+        return pages[0]
+    start, end = marker_lines(marker)
+    if not pages:
+        raise MarkerError(
+            f"no page {DOCS.as_posix()}/*.md holds block {marker!r} (a {start} line and a {end} line): "
+            "add the pair to the page the block belongs on"
+        )
+    names = ", ".join(page.relative_to(root).as_posix() for page in pages)
+    raise MarkerError(f"block {marker!r} is on {len(pages)} pages ({names}): it must be on exactly one")
 
 
 def _split(text: str, marker: str, where: Path) -> tuple[str, str, str]:
-    """(text before the block's start line, the block, text from its end line on)."""
-    start, end = f"<!-- {marker}:start -->", f"<!-- {marker}:end -->"
-    if start not in text or end not in text:
-        raise ValueError(f"{where} has no {start} ... {end} block")
-    head, rest = text.split(start, 1)
-    block, tail = rest.split(end, 1)
-    return f"{head}{start}\n", block.removeprefix("\n"), f"{end}{tail}"
+    """(text up to and with the block's start line, the block, text from its end line on)."""
+    lines = text.splitlines(keepends=True)
+    starts, ends = _marker_indices(lines, marker)
+    start, end = marker_lines(marker)
+    if len(starts) != 1 or len(ends) != 1 or ends[0] < starts[0]:
+        raise MarkerError(
+            f"{where} has no single {start} ... {end} block ({len(starts)} start and {len(ends)} end lines)"
+        )
+    s, e = starts[0], ends[0]
+    return "".join(lines[: s + 1]), "".join(lines[s + 1 : e]), "".join(lines[e:])
 
 
 def read_block(page: Path, marker: str) -> str:
@@ -84,13 +136,14 @@ def headline_of(block: str) -> str:
 
 
 def run_block(root: Path, run_dir: Path, marker: str, copy_figure: bool = True) -> str:
-    """The results block of the experiment in `run_dir`, its attention figure copied beside docs/results.md."""
+    """The results block of the experiment in `run_dir`, its attention figure copied to docs/figures/ and linked
+    relative to the docs pages (figures/<marker>-attention.png)."""
     report = json.loads((run_dir / "report.json").read_text())
     figure = FIGURES / f"{marker}-attention.png"
     if copy_figure:
         (root / FIGURES).mkdir(parents=True, exist_ok=True)
         shutil.copyfile(run_dir / report["figures"]["attention"], root / figure)
-    return results_block(report, figure.relative_to(RESULTS_PAGE.parent).as_posix())
+    return results_block(report, figure.relative_to(DOCS).as_posix())
 
 
 def block_differences(written: str, produced: str) -> list[str]:
@@ -104,11 +157,12 @@ def block_differences(written: str, produced: str) -> list[str]:
 
 
 def check(root: Path, run_dir: Path, marker: str) -> int:
-    """0 when the run's numbers are those of docs/results.md's block (exactly, for equal numerics keys) or
+    """0 when the run's numbers are those of the docs block `marker` (exactly, for equal numerics keys) or
     agree with them (`blockdata.agreement`, for different keys), else 1; prints which comparison it made and
     its outcome. A block without a data line (made before blocks carried one) fails: it must be regenerated."""
-    written, produced = read_block(root / RESULTS_PAGE, marker), run_block(root, run_dir, marker, False)
-    where = f"{RESULTS_PAGE} block {marker!r}"
+    docs_page = find_page(root, marker)
+    written, produced = read_block(docs_page, marker), run_block(root, run_dir, marker, False)
+    where = f"{docs_page.relative_to(root).as_posix()} block {marker!r}"
     page, run = BlockData.read(written), BlockData.read(produced)
     if page is None:
         print(
@@ -166,20 +220,43 @@ def _check_agreement(page: BlockData, run: BlockData, run_dir: Path, where: str)
     return 0
 
 
-def update_headline(root: Path) -> None:
-    """Copy the head of docs/results.md's paper-results block into the README's headline block."""
-    replace_block(root / README, HEADLINE, headline_of(read_block(root / RESULTS_PAGE, HEADLINE_SOURCE)))
+def update_headline(root: Path) -> Path:
+    """Copy the head of the paper-results block (on whichever docs page holds it) into the README's headline
+    block; returns that page."""
+    source = find_page(root, HEADLINE_SOURCE)
+    read_block(root / README, HEADLINE)  # the README must hold its block before anything is written
+    replace_block(root / README, HEADLINE, headline_of(read_block(source, HEADLINE_SOURCE)))
+    return source
+
+
+def _target(root: Path, marker: str) -> Path:
+    """The docs page holding block `marker`, its marker lines checked, and for the headline's source the
+    README's headline block too: every `MarkerError` comes before anything is written."""
+    page = find_page(root, marker)
+    read_block(page, marker)
+    if marker == HEADLINE_SOURCE:
+        read_block(root / README, HEADLINE)
+    return page
+
+
+def _usage_error(message: str) -> int:
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+    return 2
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
     ap.add_argument("run_dir", type=Path, nargs="?", help="the experiment's output folder (its --out)")
-    ap.add_argument("--marker", default="quick-results", help="the docs/results.md block to replace")
+    ap.add_argument(
+        "--marker",
+        default="quick-results",
+        help="the block to replace (on whichever docs/*.md page holds it)",
+    )
     ap.add_argument(
         "--against", type=Path, help="write the comparison of run_dir (B) with this run (A) instead"
     )
     ap.add_argument(
-        "--headline", action="store_true", help="only copy the README's headline from docs/results.md"
+        "--headline", action="store_true", help="only copy the README's headline from the paper-results block"
     )
     ap.add_argument("--file", type=Path, help="write this markdown file (a script's output) as the block")
     ap.add_argument("--root", type=Path, default=ROOT, help="the repository to update (default: this one)")
@@ -189,26 +266,42 @@ def main(argv: list[str] | None = None) -> int:
         help="change nothing; exit 1 if the run's block differs from the page's",
     )
     args = ap.parse_args(argv)
+    if not (args.headline or args.file) and args.run_dir is None:
+        return _usage_error("run_dir is needed unless --headline or --file is given")
+    try:
+        return _run(args)
+    except MarkerError as e:
+        return _usage_error(str(e))
+
+
+def _run(args: argparse.Namespace) -> int:
+    root = args.root
     if args.headline:
-        update_headline(args.root)
-        print(f"README.md block {HEADLINE!r} updated from {RESULTS_PAGE} block {HEADLINE_SOURCE!r}")
+        source = update_headline(root)
+        print(
+            f"README.md block {HEADLINE!r} updated from {source.relative_to(root).as_posix()} block {HEADLINE_SOURCE!r}"
+        )
         return 0
+    page = _target(root, args.marker)
+    where = f"{page.relative_to(root).as_posix()} block {args.marker!r}"
     if args.file:
-        replace_block(args.root / RESULTS_PAGE, args.marker, args.file.read_text().rstrip("\n") + "\n")
-        print(f"{RESULTS_PAGE} block {args.marker!r} updated from {args.file}")
+        if not args.file.is_file():
+            return _usage_error(f"--file {args.file}: no such file")
+        replace_block(page, args.marker, args.file.read_text().rstrip("\n") + "\n")
+        print(f"{where} updated from {args.file}")
         return 0
-    if args.run_dir is None:
-        ap.error("run_dir is needed unless --headline or --file is given")
+    if not args.against and not (args.run_dir / "report.json").is_file():
+        return _usage_error(f"{args.run_dir} has no report.json (not a finished experiment folder)")
     if args.check:
-        return check(args.root, args.run_dir, args.marker)
+        return check(root, args.run_dir, args.marker)
     if args.against:
         block = compare_markdown(compare_runs(args.against, args.run_dir), level=4)
     else:
-        block = run_block(args.root, args.run_dir, args.marker)
-    replace_block(args.root / RESULTS_PAGE, args.marker, block)
-    print(f"{RESULTS_PAGE} block {args.marker!r} updated from {args.run_dir}")
+        block = run_block(root, args.run_dir, args.marker)
+    replace_block(page, args.marker, block)
+    print(f"{where} updated from {args.run_dir}")
     if args.marker == HEADLINE_SOURCE:
-        update_headline(args.root)
+        update_headline(root)
         print(f"README.md block {HEADLINE!r} updated from it")
     return 0
 

@@ -1,10 +1,13 @@
-"""scripts/update_results.py: results blocks go into docs/results.md, the README's headline is the head of the
-paper-results block, nothing outside the markers changes, and --check compares a run with a block exactly when
-their numerics keys are equal, by a stated test of agreement when they differ, and refuses a block without
-its data line (issue 33)."""
+"""scripts/update_results.py: a results block goes onto the one docs/*.md page that holds its marker (none or
+two is refused, naming the marker, before anything is written; issue 34), the README's headline is the head of
+the paper-results block wherever it lives, nothing outside the markers changes, and --check compares a run with
+a block exactly when their numerics keys are equal, by a stated test of agreement when they differ, and
+refuses a block without its data line (issue 33). The repository's own pages: every marker on exactly one page,
+every local link resolves, the findings page's numbers are quoted from blocks."""
 
 import importlib.util
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -28,15 +31,20 @@ def script():
     return module
 
 
+MAIN_JOB = "# Main job\n<!-- quick-results:start -->\nold quick\n<!-- quick-results:end -->\nmiddle\n"
+PAPER = "# Paper\nThe `<!-- quick-results:start -->` line is prose here.\n<!-- paper-results:start -->\nold paper\n<!-- paper-results:end -->\nend\n"
+INDEX = "# Findings\n[main job](main-job.md)\n"
+
+
 @pytest.fixture
 def repo(tmp_path):
-    """A repository with a README headline block and a results page holding two blocks."""
+    """A repository with a README headline block and three docs pages: the quick block on one, the paper block
+    on another (which mentions the quick marker inside a line of prose), none on the third."""
     (tmp_path / "docs").mkdir()
     (tmp_path / "README.md").write_text("# x\n<!-- headline:start -->\nold\n<!-- headline:end -->\nend\n")
-    (tmp_path / "docs" / "results.md").write_text(
-        "# Results\n<!-- quick-results:start -->\nold quick\n<!-- quick-results:end -->\nmiddle\n"
-        "<!-- paper-results:start -->\nold paper\n<!-- paper-results:end -->\nend\n"
-    )
+    (tmp_path / "docs" / "main-job.md").write_text(MAIN_JOB)
+    (tmp_path / "docs" / "paper.md").write_text(PAPER)
+    (tmp_path / "docs" / "README.md").write_text(INDEX)
     return tmp_path
 
 
@@ -50,15 +58,16 @@ def run(tmp_path):
     return run
 
 
-def test_a_run_block_goes_into_the_results_page_with_its_figure(script, repo, run):
+def test_a_run_block_goes_onto_the_page_that_holds_its_marker_with_its_figure(script, repo, run):
     assert script.main([str(run), "--root", str(repo)]) == 0
-    page = (repo / "docs" / "results.md").read_text()
+    page = (repo / "docs" / "main-job.md").read_text()
     report = json.loads((run / "report.json").read_text())
     block = results_block(report, "figures/quick-results-attention.png")
-    assert page == (
-        "# Results\n<!-- quick-results:start -->\n" + block + "<!-- quick-results:end -->\nmiddle\n"
-        "<!-- paper-results:start -->\nold paper\n<!-- paper-results:end -->\nend\n"
+    assert (
+        page == "# Main job\n<!-- quick-results:start -->\n" + block + "<!-- quick-results:end -->\nmiddle\n"
     )
+    assert (repo / "docs" / "paper.md").read_text() == PAPER  # the marker inside prose is not a block
+    assert (repo / "docs" / "README.md").read_text() == INDEX
     assert (repo / "docs" / "figures" / "quick-results-attention.png").read_bytes() == b"png"
     assert "old" in (repo / "README.md").read_text()  # only paper-results feeds the headline
 
@@ -69,11 +78,12 @@ def test_the_paper_block_refreshes_the_readme_headline(script, repo, run):
     readme = (repo / "README.md").read_text()
     head = "\n".join(headline_lines(report))
     assert readme == f"# x\n<!-- headline:start -->\n{head}\n\n<!-- headline:end -->\nend\n"
-    assert "![attention](figures/paper-results-attention.png)" in (repo / "docs" / "results.md").read_text()
+    assert "![attention](figures/paper-results-attention.png)" in (repo / "docs" / "paper.md").read_text()
+    assert (repo / "docs" / "main-job.md").read_text() == MAIN_JOB
 
 
-def test_headline_only_copies_from_the_results_page(script, repo, run):
-    page = repo / "docs" / "results.md"
+def test_headline_only_copies_from_the_page_holding_the_paper_block(script, repo, run):
+    page = repo / "docs" / "paper.md"
     block = results_block(json.loads((run / "report.json").read_text()), "figures/f.png")
     script.replace_block(page, "paper-results", block)
     assert script.main(["--headline", "--root", str(repo)]) == 0
@@ -81,17 +91,82 @@ def test_headline_only_copies_from_the_results_page(script, repo, run):
     assert script.headline_of(block).startswith("Latest `smoke` run")
 
 
-def test_a_page_without_the_block_is_refused(script, repo, run):
-    with pytest.raises(ValueError, match="has no <!-- paper-budget:start -->"):
-        script.main([str(run), "--marker", "paper-budget", "--root", str(repo)])
-    with pytest.raises(SystemExit):
-        script.main(["--root", str(repo)])  # no run and no --headline
+def docs_bytes(repo):
+    return {p.relative_to(repo).as_posix(): p.read_bytes() for p in sorted(repo.rglob("*")) if p.is_file()}
+
+
+def test_a_marker_no_page_holds_is_refused_in_one_line_naming_it(script, repo, run, capsys):
+    before = docs_bytes(repo)
+    capsys.readouterr()
+    for argv in (
+        [str(run), "--marker", "paper-budget"],
+        [str(run), "--marker", "paper-budget", "--check"],
+        ["--file", str(run / "report.json"), "--marker", "paper-budget"],
+    ):
+        assert script.main([*argv, "--root", str(repo)]) == 2
+        err = capsys.readouterr().err
+        assert err == (
+            "update_results.py: error: no page docs/*.md holds block 'paper-budget' (a <!-- paper-budget:start "
+            "--> line and a <!-- paper-budget:end --> line): add the pair to the page the block belongs on\n"
+        )
+    assert docs_bytes(repo) == before  # not even the figure was copied
+    assert script.main(["--root", str(repo)]) == 2  # no run and no --headline
+    assert "run_dir is needed" in capsys.readouterr().err
+
+
+def test_a_marker_on_two_pages_is_refused_naming_the_marker_and_both_pages(script, repo, run, capsys):
+    (repo / "docs" / "copy.md").write_text(PAPER)  # the paper block on a second page
+    before = docs_bytes(repo)
+    capsys.readouterr()
+    expected = (
+        "update_results.py: error: block 'paper-results' is on 2 pages (docs/copy.md, docs/paper.md): "
+        "it must be on exactly one\n"
+    )
+    for argv in (
+        [str(run), "--marker", "paper-results"],
+        ["--headline"],
+        [str(run), "--marker", "paper-results", "--check"],
+    ):
+        assert script.main([*argv, "--root", str(repo)]) == 2
+        assert capsys.readouterr().err == expected
+    assert docs_bytes(repo) == before
+    with pytest.raises(script.MarkerError, match="'paper-results' is on 2 pages"):
+        script.find_page(repo, "paper-results")
+
+
+def test_a_page_with_a_start_line_and_no_end_line_is_refused(script, repo, run, capsys):
+    (repo / "docs" / "main-job.md").write_text("# Main job\n<!-- quick-results:start -->\nold quick\n")
+    before = docs_bytes(repo)
+    capsys.readouterr()
+    assert script.main([str(run), "--root", str(repo)]) == 2
+    assert (
+        "main-job.md has no single <!-- quick-results:start --> ... <!-- quick-results:end --> block (1 start and 0 end"
+        in (capsys.readouterr().err)
+    )
+    assert docs_bytes(repo) == before
+
+
+def test_a_paper_block_is_not_written_when_the_readme_has_no_headline_block(script, repo, run, capsys):
+    (repo / "README.md").write_text("# x\n")
+    before = docs_bytes(repo)
+    assert script.main([str(run), "--marker", "paper-results", "--root", str(repo)]) == 2
+    assert "README.md has no single <!-- headline:start -->" in capsys.readouterr().err
+    assert docs_bytes(repo) == before
+
+
+def test_a_run_folder_without_a_report_is_refused_in_one_line(script, repo, tmp_path, capsys):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert script.main([str(empty), "--root", str(repo)]) == 2
+    assert capsys.readouterr().err == (
+        f"update_results.py: error: {empty} has no report.json (not a finished experiment folder)\n"
+    )
 
 
 def test_the_repositorys_readme_headline_is_the_head_of_its_paper_block(script, tmp_path):
-    """The README's headline block is what the script makes of docs/results.md, not typed text."""
+    """The README's headline block is what the script makes of the paper-results block, not typed text."""
     readme_headline = script.read_block(ROOT / "README.md", "headline")
-    paper = script.read_block(ROOT / "docs" / "results.md", "paper-results")
+    paper = script.read_block(script.find_page(ROOT, "paper-results"), "paper-results")
     assert readme_headline == script.headline_of(paper)
     shutil.copytree(ROOT / "docs", tmp_path / "docs", ignore=shutil.ignore_patterns("figures"))
     shutil.copy(ROOT / "README.md", tmp_path / "README.md")
@@ -144,10 +219,10 @@ def test_check_is_exact_when_the_numerics_keys_are_equal(script, repo, tmp_path,
     assert (
         script.main([str(quick_run(tmp_path, "same", DOCS, BF16_AMD)), "--root", str(repo), "--check"]) == 0
     )
-    assert "reproduces docs/results.md block 'quick-results' exactly (same numerics key: bf16 mixed" in (
+    assert "reproduces docs/main-job.md block 'quick-results' exactly (same numerics key: bf16 mixed" in (
         capsys.readouterr().out
     )
-    page = repo / "docs" / "results.md"
+    page = repo / "docs" / "main-job.md"
     text = page.read_text()
     start = text.index("<!-- quick-results:start -->\n") + len("<!-- quick-results:start -->\n")
     page.write_text(text[:start] + "Latest run: another date and wall time" + text[text.index("\n", start) :])
@@ -157,7 +232,7 @@ def test_check_is_exact_when_the_numerics_keys_are_equal(script, repo, tmp_path,
     capsys.readouterr()
     assert script.main([str(closer), "--root", str(repo), "--check"]) == 1
     out = capsys.readouterr().out
-    assert "does not reproduce docs/results.md block 'quick-results' exactly although both have" in out
+    assert "does not reproduce docs/main-job.md block 'quick-results' exactly although both have" in out
     assert "29/50" in out
     page.write_text(text.replace("| baseline | 28/50", "| baseline | 27/50", 1))  # a table typed by hand
     assert script.main([str(page_run), "--root", str(repo), "--check"]) == 1
@@ -174,7 +249,7 @@ def test_check_tests_agreement_when_the_numerics_keys_differ(script, repo, tmp_p
     assert "not an exact comparison but a test of agreement" in out and "p >= 0.01/2 = 0.005" in out
     assert f"baseline x clean: page 28/50, run 17/50, p = {fisher_exact(28, 50, 17, 50):.3g}" in out
     assert "attention columns not tested" in out
-    assert "agrees with docs/results.md block 'quick-results' (not identical: different numerics)" in out
+    assert "agrees with docs/main-job.md block 'quick-results' (not identical: different numerics)" in out
 
 
 def test_check_fails_counts_that_chance_does_not_explain_naming_the_arm(script, repo, tmp_path, capsys):
@@ -192,7 +267,7 @@ def test_check_fails_counts_that_chance_does_not_explain_naming_the_arm(script, 
     p = fisher_exact(40, 50, 17, 50)
     assert p < 0.005
     assert last == (
-        f"{avx2} does not agree with docs/results.md block 'quick-results': baseline x clean: page 40/50, "
+        f"{avx2} does not agree with docs/main-job.md block 'quick-results': baseline x clean: page 40/50, "
         f"run 17/50, Fisher exact p = {p:.3g} < 0.005"
     )
 
@@ -208,14 +283,14 @@ def test_a_block_without_a_data_line_fails_and_says_to_regenerate_it(script, rep
     """Today's quick block (rendered before blocks carried their numerics) must not pass silently."""
     run = quick_run(tmp_path, "run", DOCS, BF16_AMD)
     script.main([str(run), "--root", str(repo)])
-    page = repo / "docs" / "results.md"
+    page = repo / "docs" / "main-job.md"
     page.write_text(
         "".join(ln for ln in page.read_text().splitlines(True) if not ln.startswith("<!-- results:data"))
     )
     capsys.readouterr()
     assert script.main([str(run), "--root", str(repo), "--check"]) == 1
     assert capsys.readouterr().out == (
-        "docs/results.md block 'quick-results' predates the numerics key (it has no <!-- results:data line), "
+        "docs/main-job.md block 'quick-results' predates the numerics key (it has no <!-- results:data line), "
         "so it cannot say which machine and precision its numbers need: regenerate it with "
         f"`python scripts/update_results.py {run}` and commit it\n"
     )
@@ -264,9 +339,91 @@ def test_a_scripts_markdown_file_becomes_a_block(script, repo, tmp_path):
     md = tmp_path / "horizon.md"
     md.write_text("## Horizon\n\n| arm | n |\n|---|---|\n| gaze | 3 |\n\n")
     assert script.main(["--file", str(md), "--marker", "quick-results", "--root", str(repo)]) == 0
-    page = (repo / "docs" / "results.md").read_text()
+    page = (repo / "docs" / "main-job.md").read_text()
     assert (
         "<!-- quick-results:start -->\n## Horizon\n\n| arm | n |\n|---|---|\n| gaze | 3 |\n<!-- quick-results:end -->"
         in page
     )
-    assert "old paper" in page and "middle" in page
+    assert "middle" in page and (repo / "docs" / "paper.md").read_text() == PAPER
+
+
+# The repository's own pages (issue 34: findings first, one page per study, every block on exactly one page).
+
+DOCS_PAGES = sorted((ROOT / "docs").glob("*.md"))
+START = re.compile(r"<!-- ([A-Za-z0-9_.-]+):start -->")
+
+
+def test_every_block_in_the_docs_is_on_exactly_one_page_and_readable(script):
+    markers = {m.group(1) for page in DOCS_PAGES for m in START.finditer(page.read_text())}
+    markers -= {"NAME"}  # prose that explains the marker lines
+    assert {"quick-results", "paper-results", "paper-robustness", "libero-results", "lerobot-e2e"} <= markers
+    for marker in sorted(markers):
+        page = script.find_page(ROOT, marker)  # raises for none or two
+        assert script.read_block(page, marker).strip(), marker
+
+
+def _outside_code(text: str) -> str:
+    """`text` without fenced code blocks and inline code spans."""
+    text = re.sub(r"^```.*?^```", "", text, flags=re.S | re.M)
+    return re.sub(r"`[^`\n]*`", "", text)
+
+
+def _anchors(text: str) -> set[str]:
+    """GitHub's heading anchors of a markdown page: lower case, punctuation dropped, spaces to hyphens, a
+    repeated heading numbered -1, -2, ..."""
+    seen: dict[str, int] = {}
+    out = set()
+    for line in re.sub(r"^```.*?^```", "", text, flags=re.S | re.M).splitlines():
+        m = re.match(r"#{1,6} (.*)", line)
+        if not m:
+            continue
+        slug = re.sub(r"[^\w\- ]", "", m.group(1).strip().lower()).replace(" ", "-")
+        n = seen.get(slug, 0)
+        seen[slug] = n + 1
+        out.add(slug if n == 0 else f"{slug}-{n}")
+    return out
+
+
+def test_every_local_link_and_anchor_on_the_docs_pages_and_readme_resolves():
+    broken = []
+    for page in [*DOCS_PAGES, ROOT / "README.md"]:
+        for target in re.findall(r"\]\(([^)\s]+)\)", _outside_code(page.read_text())):
+            if re.match(r"[a-z]+://", target):
+                continue
+            path, _, anchor = target.partition("#")
+            file = (page.parent / path).resolve() if path else page
+            if not file.exists():
+                broken.append(f"{page.name}: {target} (no such file)")
+            elif anchor and anchor not in _anchors(file.read_text()):
+                broken.append(f"{page.name}: {target} (no such heading)")
+    assert broken == []
+
+
+def test_the_findings_page_lists_every_docs_page():
+    findings = (ROOT / "docs" / "README.md").read_text()
+    assert findings.startswith("# What the experiments found\n")
+    contents = findings[findings.index("## The pages") :]
+    assert [p.name for p in DOCS_PAGES if f"]({p.name})" not in contents] == []
+
+
+NUMBER = re.compile(r"[+-]?\d+\.\d+|\d+/\d+")
+
+
+def _blocks_text(script) -> str:
+    markers = {m.group(1) for page in DOCS_PAGES for m in START.finditer(page.read_text())} - {"NAME"}
+    return "\n".join(script.read_block(script.find_page(ROOT, m), m) for m in markers)
+
+
+def test_the_numbers_in_the_findings_and_the_readme_results_are_quoted_from_blocks(script):
+    """Every success count (k/n) and decimal in the prose of the findings page and of the README's Results
+    section (outside blocks and code) occurs in a generated block: quoted, never computed or typed."""
+    blocks = _blocks_text(script)
+    readme = (ROOT / "README.md").read_text()
+    results = readme[readme.index("## Results") : readme.index("## Your own policy")]
+    prose = [
+        (ROOT / "docs" / "README.md").read_text(),
+        results.replace(script.read_block(ROOT / "README.md", "headline"), ""),
+    ]
+    numbers = {n for text in prose for n in NUMBER.findall(_outside_code(text))}
+    assert len(numbers) > 10  # the findings quote their evidence
+    assert sorted(n for n in numbers if n not in blocks) == []
