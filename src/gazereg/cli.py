@@ -30,6 +30,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "gazereg.experiment:main",
         "the end-to-end pipeline: demos, priors, training, evaluation, report",
     ),
+    "pretrain": ("gazereg.experiment.pretrain:main", "pretrain a generalist VLA on many tasks (ML45)"),
     "pool": (
         "gazereg.experiment.pool:main",
         "one report over run folders of one experiment that differ only in their training seeds and arms",

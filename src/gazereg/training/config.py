@@ -162,6 +162,10 @@ class TrainConfig(Validated):
     policy: PolicyConfig = field(default_factory=VLAConfig, metadata=POLICY_CHOICE.metadata())
     """the policy's config: the reference VLA unless `--policy.type NAME` picks another registered policy
     (gazereg.policies), whose fields then take overrides (--policy.FIELD value)"""
+    init_from: Path | None = None
+    """a saved policy folder (model.safetensors, config.json, tokenizer.json; e.g. `gazereg pretrain`'s
+    policy/) whose weights, normalisation statistics and tokenizer the run starts from instead of a fresh
+    initialisation; its architecture must be this run's `policy` (gazereg.training.init_from)"""
     data: DataConfig = field(default_factory=DataConfig)
     gaze: GazeConfig = field(default_factory=GazeConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)

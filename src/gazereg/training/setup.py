@@ -46,6 +46,7 @@ from gazereg.training.checkpoint import CheckpointData, latest_checkpoint, read_
 from gazereg.training.config import EXECUTION_KEYS, TrainConfig, upgrade_saved
 from gazereg.training.ema import EMA
 from gazereg.training.guards import check_batch_size, gaze_camera_for
+from gazereg.training.init_from import init_policy, init_record, read_init, write_init_record
 from gazereg.training.location import HEAD_NAME, LocationHead, make_location_head
 from gazereg.training.logger import MetricsFile, NullLogger, make_logger
 from gazereg.training.schedule import lr_lambda, param_groups
@@ -68,16 +69,23 @@ class Built:
     attention_grid: tuple[int, int] | None = None
     """(rows, cols) of the policy's patch grid for the gaze camera, the probed attention's (None without a
     prior)"""
+    init: dict[str, Any] | None = None
+    """with --init-from: what the run records of the saved policy it started from (init_from.init_record)"""
 
 
 def build(cfg: TrainConfig) -> Built:
     """Data sets, the policy (seeded, its config resolved from the data) with normalisation stats, gaze targets."""
     seed_everything(cfg.seed)
+    saved = read_init(Path(cfg.init_from), cfg.policy.type) if cfg.init_from is not None else None
     store = EpisodeStore(cfg.data.store)
     episodes = select_episodes(store, cfg.data.tasks, cfg.data.max_episodes)
     train_eps, val_eps = split_episodes(store, episodes, cfg.data.val_fraction, cfg.seed)
     check_batch_size(cfg, store, train_eps, len(val_eps))
-    policy = make_policy(cfg.policy, describe_store(store, episodes, cfg.policy.cameras))
+    data = describe_store(store, episodes, cfg.policy.cameras)
+    if saved is None:
+        policy = make_policy(cfg.policy, data)
+    else:  # fine-tuning: the saved weights, normalisation and tokenizer (gazereg.training.init_from)
+        policy = init_policy(cfg.policy, data, saved, Path(cfg.init_from))
     pcfg = policy.config
     gaze_camera = None
     geometry = None
@@ -102,8 +110,11 @@ def build(cfg: TrainConfig) -> Built:
 
     train_set = dataset(train_eps)
     val_set = dataset(val_eps) if val_eps else None
-    policy.set_normalization(**train_set.stats())
+    if saved is None:
+        policy.set_normalization(**train_set.stats())
     built = Built(policy, dataclasses.replace(cfg, policy=pcfg), train_set, val_set, gaze_camera)
+    if saved is not None:
+        built.init = init_record(Path(cfg.init_from), saved)
     if gaze_camera is not None:
         built.gaze_grid = train_set.gaze_geometry.grid_hw
         built.attention_grid = policy.geometry(gaze_camera).grid_hw
@@ -324,6 +335,8 @@ def setup(cfg: TrainConfig) -> Run:
         metrics.truncate_after(start)  # from scratch (start 0): a clean file, not a killed run's records
         run_dir.mkdir(parents=True, exist_ok=True)
         save_config(cfg, run_dir / "config.json")
+        if built.init is not None:
+            write_init_record(run_dir, built.init)
     acc.wait_for_everyone()
     model, opt = acc.prepare(policy, opt)
     stop = min(cfg.steps, cfg.stop_at) if cfg.stop_at is not None else cfg.steps

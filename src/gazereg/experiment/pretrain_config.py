@@ -1,0 +1,213 @@
+"""`gazereg pretrain`'s configuration, its presets (`ml45`, `smoke`) and what it checks before any work.
+
+    cfg = PRESETS["smoke"]()                  # 2 tasks, a tiny policy, seconds
+    preflight(cfg)                            # tasks, held-out tasks, instructions vs the tokenizer
+    finetune_flags(cfg.train.policy)          # ["--train.policy.dim", "192", ...]: the architecture to fine-tune
+
+The options are checked when the config is built (`Validated`): counts in range, the demonstrations' and the
+evaluation's setup seeds inside the ranges reserved for pretraining (gazereg.envs.metaworld.setups), no gaze
+prior, and the "bytes" tokenizer. Why bytes: the fine-tuning runs must encode ML45's held-out instructions
+with the pretrained tokenizer (gazereg.training.init_from reuses it); a "words" vocabulary built from the 45
+training instructions maps the held-out tasks' own words (lock, unlock, bin, lid, hand, ...) to <unk>, and
+every byte of the held-out instructions is one the pretraining trained. The cost is a longer text: 64 byte
+tokens (the longest ML45 instruction has 58 bytes) instead of at most 13 words. `preflight` refuses, before
+any work, a task outside Meta-World, one of ML45's held-out tasks, and a `--train.policy.max-text-len` too
+short for an instruction of the pretraining tasks or of the held-out ones (it would be cut).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from gazereg.envs.metaworld.instructions import instruction_for
+from gazereg.envs.metaworld.ml45 import ml45_split
+from gazereg.envs.metaworld.setups import PRETRAIN_DEMOS, PRETRAIN_EVAL
+from gazereg.evaluation.config import check_tasks
+from gazereg.policies import PolicyConfig
+from gazereg.policies.vla.configuration_vla import VLAConfig
+from gazereg.runtime.config import Validated, option, require_entries, require_number
+from gazereg.runtime.errors import UsageError
+from gazereg.training.config import EXECUTION_KEYS as TRAIN_EXECUTION_KEYS
+from gazereg.training.config import OptimConfig, TrainConfig
+from gazereg.training.config import smoke as smoke_train
+from gazereg.training.config import tuned as tuned_train
+
+TEXT_TOKENS = 64
+"""byte tokens of the presets' instruction: the longest ML45 instruction has 58 bytes"""
+
+
+@dataclass(frozen=True)
+class PretrainConfig(Validated):
+    """Multi-task pretraining with language (no gaze): demos -> train -> eval -> manifest (gazereg.experiment
+    .pretrain). The training run's folder, store and gaze settings are the stages' own."""
+
+    out: Path = Path("runs/pretrain")
+    tasks: tuple[str, ...] = ("reach-v3", "push-v3")
+    """Meta-World v3 tasks to pretrain on (never one of ML45's held-out five)"""
+    camera: str = "corner2"
+    image_size: int = 96
+    """side of the square camera images the demonstrations store (pixels)"""
+    demos_per_task: int = 50
+    """successful expert demonstrations per task, from setup seed PRETRAIN_DEMOS.start on"""
+    demo_max_failures: int = 50
+    """extra setups per task tried in place of the expert's failed rollouts"""
+    demo_max_steps: int = 300
+    """a demonstration that has not succeeded after this many steps is a failure"""
+    collect_workers: int = 2
+    train: TrainConfig = field(default_factory=lambda: ml45_train())
+    eval_episodes: int = 10
+    """evaluation episodes per task, on setup seeds PRETRAIN_EVAL.start .."""
+    eval_max_steps: int = 200
+    eval_workers: int = 2
+    eval_batch: int | None = None
+    """environments a worker steps in lockstep (None: the simulator's default; gazereg.evaluation.config)"""
+
+    def validate(self, prefix: str) -> None:
+        require_entries(self.tasks, prefix + "tasks", noun="task", show=str)
+        for name, low in (("image_size", 8), ("demos_per_task", 1), ("demo_max_failures", 0)):
+            require_number(getattr(self, name), prefix + name, low, integer=True)
+        for name in ("demo_max_steps", "eval_episodes", "eval_max_steps", "eval_workers"):
+            require_number(getattr(self, name), prefix + name, 1, integer=True)
+        require_number(self.collect_workers, prefix + "collect_workers", 0, integer=True)
+        if self.eval_batch is not None:
+            require_number(self.eval_batch, prefix + "eval_batch", 1, integer=True)
+        if not self.camera:
+            raise UsageError(f"{option(prefix + 'camera')} is empty: name the camera")
+        PRETRAIN_DEMOS.require(
+            self.demo_seeds,
+            f"{option(prefix + 'demos_per_task')} {self.demos_per_task} + "
+            f"{option(prefix + 'demo_max_failures')} {self.demo_max_failures}",
+        )
+        PRETRAIN_EVAL.require(self.eval_seeds, f"{option(prefix + 'eval_episodes')} {self.eval_episodes}")
+        if self.train.gaze.prior is not None:
+            raise UsageError(
+                f"{option(prefix + 'train.gaze.prior')} {self.train.gaze.prior}: pretraining has no gaze term"
+            )
+        tokenizer = getattr(self.train.policy, "tokenizer", "bytes")
+        if tokenizer != "bytes":
+            raise UsageError(
+                f"{option(prefix + 'train.policy.tokenizer')} {tokenizer}: pretraining uses the bytes tokenizer, "
+                "so that the fine-tuning runs can encode the held-out tasks' instructions"
+            )
+
+    @property
+    def demo_seeds(self) -> range:
+        """The setup seeds the demonstrations may use (demos plus replacements), per task."""
+        return range(
+            PRETRAIN_DEMOS.start, PRETRAIN_DEMOS.start + self.demos_per_task + self.demo_max_failures
+        )
+
+    @property
+    def eval_seeds(self) -> range:
+        return range(PRETRAIN_EVAL.start, PRETRAIN_EVAL.start + self.eval_episodes)
+
+
+EXECUTION_KEYS = (
+    "out",
+    "collect_workers",
+    "eval_workers",
+    "eval_batch",
+    *(f"train.{k}" for k in TRAIN_EXECUTION_KEYS),
+)
+"""keys a resumed pretraining may change: how it runs, not what it produces"""
+
+
+def preflight(cfg: PretrainConfig) -> None:
+    """Refuse (UsageError, one line) before any work: a task Meta-World lacks, one of ML45's held-out tasks,
+    and a text length that would cut an instruction of the pretraining or the held-out tasks."""
+    check_tasks("metaworld", cfg.tasks, "--tasks")
+    held_out = ml45_split().test
+    seen = [t for t in cfg.tasks if t in held_out]
+    if seen:
+        raise UsageError(f"--tasks: {seen[0]} is one of ML45's held-out tasks ({', '.join(held_out)})")
+    length = getattr(cfg.train.policy, "max_text_len", None)
+    if length is None:
+        return
+    for task in (*cfg.tasks, *held_out):
+        n = len(instruction_for(task).encode("utf-8"))
+        if n > length:
+            raise UsageError(
+                f"--train.policy.max-text-len {length} cuts {task}'s instruction ({n} bytes): use {TEXT_TOKENS}"
+            )
+
+
+def finetune_flags(policy: PolicyConfig, prefix: str = "--train.policy.") -> list[str]:
+    """The command-line options that give a run this (unresolved) policy architecture: every field that
+    differs from its class's default, e.g. ["--train.policy.dim", "192", "--train.policy.tokenizer", "bytes"]."""
+    default = type(policy)()
+    out: list[str] = []
+    for f in dataclasses.fields(policy):
+        value = getattr(policy, f.name)
+        if f.name in default.data_fields() or value == getattr(default, f.name):
+            continue
+        flat = [str(v) for v in (value if isinstance(value, tuple) else (value,))]
+        out += [prefix + f.name.replace("_", "-"), *flat]
+    return out
+
+
+# ----- presets ------------------------------------------------------------------------------------------------
+def ml45_policy() -> VLAConfig:
+    """The generalist's architecture, a first guess for 2 cores (not measured yet): width 192, 6 layers, 4
+    heads, 96 px images in 12 px patches (8 x 8 tokens), chunks of 8, 64 byte tokens of instruction."""
+    return VLAConfig(dim=192, depth=6, heads=4, chunk=8, tokenizer="bytes", max_text_len=TEXT_TOKENS)
+
+
+def ml45_train() -> TrainConfig:
+    """`ml45_policy` trained 30,000 steps of batch 32 with the tuned recipe's learning rate 5e-4, checkpoints
+    every 2,000 steps (the newest 3 kept), on the GPU where there is one (a first guess, not measured)."""
+    return replace(
+        tuned_train(),
+        run_dir=Path("runs/pretrain/train"),
+        steps=30_000,
+        batch_size=32,
+        policy=ml45_policy(),
+        save_every=2000,
+        keep_checkpoints=3,
+        eval_every=1000,
+        device="auto",
+        progress=False,
+    )
+
+
+def ml45() -> PretrainConfig:
+    """The real pretraining: Meta-World ML45's 45 training tasks, 50 demonstrations each (300 steps at most, up
+    to 50 replacements of the expert's failures), `ml45_train`, then 10 evaluation episodes per task. Every
+    size is a first guess for 2 cores, to be measured and revised; `--train.stop-at N` pauses the training
+    stage with a checkpoint so it can run in sittings of under three hours."""
+    return PretrainConfig(out=Path("runs/pretrain"), tasks=ml45_split().train, train=ml45_train())
+
+
+def smoke() -> PretrainConfig:
+    """Every stage at toy size (tests/test_pretrain.py): 2 tasks, 2 demonstrations each at 48 px, a 2-layer
+    64-wide policy trained 6 steps, 1 evaluation episode of 10 steps per task."""
+    t = smoke_train()
+    train = replace(
+        t,
+        steps=6,
+        batch_size=8,
+        log_every=3,
+        eval_every=3,
+        save_every=3,
+        eval_batch_size=8,
+        policy=replace(t.policy, tokenizer="bytes", max_text_len=TEXT_TOKENS),
+        optim=OptimConfig(lr=1e-3, warmup_steps=2),
+    )
+    return PretrainConfig(
+        out=Path("runs/pretrain_smoke"),
+        tasks=("reach-v3", "button-press-topdown-v3"),
+        image_size=48,
+        demos_per_task=2,
+        demo_max_failures=4,
+        demo_max_steps=150,
+        collect_workers=1,
+        train=train,
+        eval_episodes=1,
+        eval_max_steps=10,
+        eval_workers=1,
+    )
+
+
+PRESETS = {"ml45": ml45, "smoke": smoke}
+"""`gazereg pretrain --preset NAME`; the first is the default"""
