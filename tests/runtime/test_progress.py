@@ -10,6 +10,12 @@ from gazereg.runtime import progress
 from gazereg.runtime.progress import Progress, default_mode, format_duration, format_rate
 
 
+@pytest.fixture(autouse=True)
+def wide_terminal(monkeypatch):
+    """Fake terminals 200 columns wide, whatever terminal runs the tests."""
+    monkeypatch.setenv("COLUMNS", "200")
+
+
 class Clock:
     def __init__(self) -> None:
         self.t = 1000.0
@@ -139,3 +145,16 @@ def test_a_worker_process_writes_lines_even_on_a_terminal(monkeypatch):
     assert default_mode(Stream(tty=True)) == "tty" and default_mode(Stream(tty=False)) == "lines"
     monkeypatch.setattr(multiprocessing, "parent_process", lambda: object())  # as in a spawned pool worker
     assert default_mode(Stream(tty=True)) == "lines"
+
+
+def test_the_terminal_line_is_cut_to_the_terminals_width(monkeypatch):
+    monkeypatch.setenv("COLUMNS", "30")  # a stream without a terminal size of its own: the COLUMNS variable
+    clock, stream = Clock(), Stream(tty=True)
+    with Progress("train baseline_s0", 5000, stream=stream, clock=clock) as bar:
+        clock.t += 1
+        bar.update(10)
+    cut = "train baseline_s0: 10/5000 st"  # 29 characters: the last column stays free
+    assert stream.getvalue().split("\r")[1:] == [
+        cut + progress.CLEAR_TO_END,
+        cut + progress.CLEAR_TO_END + "\n",
+    ]

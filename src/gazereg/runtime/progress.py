@@ -11,7 +11,7 @@ at that rate.
 
 Where it goes (`default_mode`, or the `mode` given), on stderr unless another stream is given:
   tty    the stream is a terminal and this is the main process: one line redrawn in place (at most every
-         `redraw_s` seconds), ended by a newline when the work ends or fails.
+         `redraw_s` seconds), cut to the terminal's width, ended by a newline when the work ends or fails.
   lines  the stream is not a terminal (CI logs, `make demo 2> log`), or this is a worker process of a pool
          (whose redrawn lines would overwrite each other's on a shared terminal): a line each time another
          `every_fraction` of the total is done, or `every_s` seconds after the last line when less was done;
@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import math
 import multiprocessing
+import os
+import shutil
 import sys
 import time
 from collections.abc import Callable
@@ -160,10 +162,10 @@ class Progress:
             return
         final = self.n >= self.total
         if self.mode == "tty":
-            self.stream.write(f"\r{self.text(final)}{CLEAR_TO_END}\n")
+            self._draw(self.clock(), "\n", final)
         else:
             self.stream.write(self.text(final) + "\n")
-        self.stream.flush()
+            self.stream.flush()
 
     def __enter__(self) -> Progress:
         return self
@@ -180,9 +182,17 @@ class Progress:
             return 0
         return math.floor(n / (self.total * self.every_fraction) + 1e-9)
 
-    def _draw(self, now: float) -> None:
+    def _width(self) -> int:
+        """The terminal's columns (its COLUMNS, or 80, where the stream does not say)."""
+        try:
+            return os.get_terminal_size(self.stream.fileno()).columns
+        except (AttributeError, OSError, ValueError):  # io.UnsupportedOperation is an OSError and ValueError
+            return shutil.get_terminal_size().columns
+
+    def _draw(self, now: float, end: str = "", final: bool = False) -> None:
+        """Redraw the line in place, cut to the terminal's width (a wrapped line could not be redrawn)."""
         self._drawn_at = now
-        self.stream.write(f"\r{self.text()}{CLEAR_TO_END}")
+        self.stream.write(f"\r{self.text(final)[: self._width() - 1]}{CLEAR_TO_END}{end}")
         self.stream.flush()
 
     def _maybe_line(self) -> None:
