@@ -18,7 +18,10 @@ what a worker loads (policies, simulators) is reused across jobs. `workers` <= 1
 process, when the pool opens, and runs the jobs there in the order they were submitted. Results come back
 to the parent as jobs finish (submission order in-process); an exception raised by a job is raised from
 `results()`, and leaving the pool on an error cancels the jobs not yet started. A spawned worker ends
-itself when its parent dies (`exit_with_parent`), so a killed run leaves no worker behind.
+itself when its parent dies (`exit_with_parent`), so a killed run leaves no worker behind. Progress: the
+parent reports jobs done as results come back; a progress bar made inside a worker process
+(`gazereg.runtime.progress`, e.g. a training run of the experiment's train stage) writes whole lines every
+tenth of its work instead of redrawing one, so workers sharing a terminal do not overwrite each other.
 
 Resume log. An append-only JSON-lines file, one `{"key": str, "record": ...}` per finished job, flushed
 and fsynced per line, so a killed job keeps every finished line; `read` maps each key to its latest record
