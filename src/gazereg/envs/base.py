@@ -4,11 +4,22 @@
     make_collector("libero")             # LIBERO's scripted-expert collector
     simulator("gazebo")                  # UnknownSimulator: names the registered ones
     register_simulator(Simulator("mysim", env="my.module:MyEnv", collector="my.module:MyCollector"))
+    simulator_names()                    # ['libero', 'metaworld', ...and every installed plugin]
 
 The registry maps a simulator's name to "module:Class" paths of its environment class and of its
 scripted-expert collector; nothing is imported until asked for (MuJoCo, Meta-World and LIBERO are heavy, and
 LIBERO lives in its own venv). Meta-World (`gazereg.envs.metaworld`) and LIBERO (`gazereg.envs.libero`) are
-registered here.
+registered here. Another simulator comes in one of two ways:
+
+- as a plugin (the way to ship one): an installed package declares a `Simulator` in the entry-point group
+  `gazereg.simulators` (`mysim = "my_package.sim:SIMULATOR"`, see `gazereg.runtime.plugins`); a name nobody
+  registered is looked up there, so `gazereg collect --env mysim`, `gazereg eval --env mysim` and
+  `gazereg experiment --env mysim` know it in every process;
+- registered in code (`register_simulator`), in the process that then runs (collection and evaluation with
+  one worker run there; their worker processes see only plugins).
+
+Configs hold a simulator's name as a plain `str` (`SimulatorName`), checked against this registry when the
+config is built (`check_simulator`: one line listing the registered names).
 """
 
 from __future__ import annotations
@@ -23,7 +34,11 @@ import numpy as np
 from gazereg.data.store import Episode
 from gazereg.envs.camera import CameraGeometry
 from gazereg.envs.perturbations import Perturbation
+from gazereg.runtime import plugins
 from gazereg.runtime.errors import UsageError
+
+SimulatorName = str
+"""a registered simulator's name (`simulator_names()`); checked when a config holding one is built"""
 
 
 class UnknownSimulator(UsageError):
@@ -130,20 +145,48 @@ _SIMULATORS: dict[str, Simulator] = {
 }
 
 
-def register_simulator(sim: Simulator) -> None:
-    """Register (or replace) a simulator under `sim.name`."""
+def register_simulator(sim: Simulator) -> Simulator:
+    """Register (or replace) a simulator under `sim.name`; returns it."""
+    if not isinstance(sim, Simulator):
+        raise TypeError(f"{sim!r} is not a gazereg.envs.base.Simulator")
     _SIMULATORS[sim.name] = sim
+    return sim
+
+
+def unregister_simulator(name: str) -> None:
+    _SIMULATORS.pop(name, None)
 
 
 def simulator_names() -> list[str]:
-    return sorted(_SIMULATORS)
+    """The registered simulators and those installed plugins provide, sorted."""
+    return sorted({*_SIMULATORS, *plugins.plugin_names(plugins.SIMULATORS)})
 
 
 def simulator(name: str) -> Simulator:
-    """The registered simulator `name`; UnknownSimulator names the registered ones."""
+    """The registered simulator `name`, else the installed plugin of that name (registered on first use);
+    UnknownSimulator names the registered ones."""
+    if name not in _SIMULATORS and (found := plugins.load_plugin(plugins.SIMULATORS, name, "simulator")):
+        value = plugins.plugin_value(plugins.SIMULATORS, name)
+        if not isinstance(found, Simulator) or found.name != name:
+            raise TypeError(
+                f"{plugins.where(plugins.SIMULATORS, name, value, 'simulator')} names {found!r}; it must name "
+                f"a gazereg.envs.base.Simulator called {name!r}"
+            )
+        register_simulator(found)
     if name not in _SIMULATORS:
         raise UnknownSimulator(f"unknown simulator {name!r}; choose one of {simulator_names()}")
     return _SIMULATORS[name]
+
+
+def check_simulator(name: object, flag: str, error: type[UsageError] = UsageError) -> None:
+    """Refuse, when a config is built, a simulator nobody registered: `error` naming `flag` and listing the
+    registered names, one line."""
+    if not isinstance(name, str):
+        raise error(f"{flag} must be a simulator name, got {name!r}")
+    try:
+        simulator(name)
+    except UnknownSimulator as e:
+        raise error(f"{flag}: {e}") from None
 
 
 def _load(path: str) -> Any:

@@ -12,9 +12,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
-from gazereg.envs.base import UnknownSimulator, make_collector, simulator
+from gazereg.envs.base import SimulatorName, check_simulator, make_collector
 from gazereg.envs.perturbations import parse_perturbation
 from gazereg.runtime.config import Validated, option, require_entries, require_number
 from gazereg.runtime.errors import UsageError
@@ -67,15 +66,13 @@ class CollectConfig(Validated):
     """OpenGL backend (egl, osmesa); empty = MUJOCO_GL if set, else egl, else osmesa."""
     progress: bool = True
     """Show a progress bar."""
-    env: Literal["metaworld", "libero"] = "metaworld"
-    """Simulator: metaworld, or libero (needs the LIBERO venv: bash scripts/libero_env.sh gazereg collect ...)."""
+    env: SimulatorName = "metaworld"
+    """Simulator: a registered name (`gazereg.envs.base.simulator_names()`): metaworld, libero (needs the LIBERO
+    venv: bash scripts/libero_env.sh gazereg collect ...), or one an installed plugin provides."""
 
     def validate(self, prefix: str) -> None:
         """UsageError (CollectError for names) naming the first bad option, as `gazereg collect` spells it."""
-        try:
-            simulator(self.env)
-        except UnknownSimulator as e:
-            raise CollectError(f"{option(prefix + 'env')}: {e}") from None
+        check_simulator(self.env, option(prefix + "env"), error=CollectError)
         for name in ("tasks", "cameras"):
             require_entries(getattr(self, name), prefix + name, non_empty=False, error=CollectError)
         require_entries(self.tasks, prefix + "tasks", noun="task", error=CollectError)

@@ -13,9 +13,8 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
-from gazereg.envs.base import UnknownSimulator, simulator
+from gazereg.envs.base import SimulatorName, check_simulator, make_collector, simulator
 from gazereg.envs.libero.setup import import_libero, libero_available, resolve_task
 from gazereg.envs.perturbations import parse_perturbation
 from gazereg.runtime.config import Validated, option, require_entries, require_number
@@ -61,9 +60,10 @@ class EvalConfig(Validated):
     out: Path = Path("runs/eval")
     gl_backend: str | None = None
     """MuJoCo OpenGL backend (egl | osmesa | glfw); None: respect MUJOCO_GL, else egl, else osmesa"""
-    env: Literal["metaworld", "libero"] = "metaworld"
-    """simulator: metaworld (tasks are Meta-World task names) or libero (tasks are suites such as
-    libero_spatial or single tasks such as libero_spatial/3; needs the LIBERO extra: scripts/libero_env.sh)"""
+    env: SimulatorName = "metaworld"
+    """simulator, a registered name (`gazereg.envs.base.simulator_names()`): metaworld (tasks are Meta-World task
+    names), libero (tasks are suites such as libero_spatial or single tasks such as libero_spatial/3; needs the
+    LIBERO extra: scripts/libero_env.sh), or one an installed plugin provides"""
     robustness_episodes: int | None = None
     """episodes per task under each condition but clean: the first of the clean setups (seeds seed_start ..),
     so every perturbed episode pairs with a clean one on its setup; None = `episodes`"""
@@ -86,10 +86,7 @@ class EvalConfig(Validated):
             except (KeyError, ValueError) as e:
                 reason = e.args[0] if e.args else str(e)
                 raise UsageError(f"{option(prefix + 'conditions')}: {condition!r}: {reason}") from None
-        try:
-            simulator(self.env)
-        except UnknownSimulator as e:
-            raise UsageError(f"{option(prefix + 'env')}: {e}") from None
+        check_simulator(self.env, option(prefix + "env"))
         if self.batch is not None:
             require_number(self.batch, prefix + "batch", 1, integer=True)
         if self.robustness_episodes is not None:
@@ -137,7 +134,8 @@ def presets() -> dict[str, Callable[[], EvalConfig]]:
 def check_tasks(env: str, tasks: Sequence[str], flag: str = "--tasks") -> None:
     """Refuse, before any work starts, a task simulator `env` does not register: a UsageError naming `flag`,
     one line. Meta-World: against its v3 tasks, with the three closest names; LIBERO: each spec resolved by
-    LIBERO (a suite, `suite/index` or `suite/name`). Also a UsageError when the simulator is not installed."""
+    LIBERO (a suite, `suite/index` or `suite/name`); another simulator: its collector's `tasks`. Also a UsageError
+    when the simulator is not installed."""
     if env == "metaworld":
         try:  # Meta-World's own registry (gazereg.envs.metaworld.env reads the same); an optional extra
             from metaworld.env_dict import ALL_V3_ENVIRONMENTS
@@ -161,6 +159,11 @@ def check_tasks(env: str, tasks: Sequence[str], flag: str = "--tasks") -> None:
             except (KeyError, ValueError) as e:
                 reason = " ".join(str(e.args[0] if e.args else e).split())
                 raise UsageError(f"{flag}: {task!r}: {reason[:300]}") from None
+    else:  # another registered simulator: its collector knows its tasks
+        try:
+            make_collector(env).tasks(tuple(tasks))
+        except (KeyError, ValueError) as e:
+            raise UsageError(f"{flag}: {e.args[0] if e.args else e}") from None
 
 
 def parse_checkpoints(items: Sequence[str], option: str = "--checkpoints") -> dict[str, Path]:

@@ -12,9 +12,8 @@ import dataclasses
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
 
-from gazereg.envs.base import UnknownSimulator, simulator
+from gazereg.envs.base import SimulatorName, check_simulator
 from gazereg.envs.metaworld.difficulty import draw_tasks
 from gazereg.evaluation.config import ROBUSTNESS_CONDITIONS, EvalConfig
 from gazereg.evaluation.config import presets as eval_presets
@@ -23,6 +22,7 @@ from gazereg.gaze.sources.glc import GLCParams
 from gazereg.gaze.sources.visuomotor import VisuomotorParams
 from gazereg.runtime.config import Validated, option, require_entries, require_number
 from gazereg.runtime.errors import UsageError
+from gazereg.training.arms import UnknownArm, arm
 from gazereg.training.config import DataConfig, GazeConfig, OptimConfig, TrainConfig
 from gazereg.training.config import quick as quick_train
 from gazereg.training.config import smoke as smoke_train
@@ -32,9 +32,10 @@ from gazereg.training.config import tuned as tuned_train
 @dataclass(frozen=True)
 class ExperimentConfig(Validated):
     out: Path = Path("runs/experiment")
-    env: Literal["metaworld", "libero"] = "metaworld"
-    """the simulator of the demonstrations and the evaluation (`eval.env` must name the same); libero runs in
-    the LIBERO venv (scripts/libero_env.sh)"""
+    env: SimulatorName = "metaworld"
+    """the simulator of the demonstrations and the evaluation, a registered name
+    (`gazereg.envs.base.simulator_names()`; `eval.env` must name the same); libero runs in the LIBERO venv
+    (scripts/libero_env.sh)"""
     tasks: tuple[str, ...] = ("reach-v3", "button-press-topdown-v3")
     camera: str = "corner2"
     image_size: int = 96
@@ -87,11 +88,11 @@ class ExperimentConfig(Validated):
         """UsageError naming the first bad option (the nested train and eval configs check their own)."""
         for name in ("tasks", "arms", "train_seeds"):
             require_entries(getattr(self, name), prefix + name, show=str)
-        unknown = [a for a in self.arms if a not in ARMS]
-        if unknown:
-            raise UsageError(
-                f"{option(prefix + 'arms')}: unknown arm {unknown[0]!r}; choose from {', '.join(ARMS)}"
-            )
+        for name in self.arms:
+            try:
+                arm(name)
+            except UnknownArm as e:
+                raise UsageError(f"{option(prefix + 'arms')}: {e}") from None
         for seed in self.train_seeds:
             require_number(seed, prefix + "train_seeds", integer=True)
         least = {
@@ -119,10 +120,7 @@ class ExperimentConfig(Validated):
         require_number(self.demo_max_failures, prefix + "demo_max_failures", 0, integer=True)
         if not self.camera:
             raise UsageError(f"{option(prefix + 'camera')} is empty: name the camera")
-        try:
-            simulator(self.env)
-        except UnknownSimulator as e:
-            raise UsageError(f"{option(prefix + 'env')}: {e}") from None
+        check_simulator(self.env, option(prefix + "env"))
         if self.eval.env != self.env:
             raise UsageError(
                 f"{option(prefix + 'eval.env')} {self.eval.env} differs from {option(prefix + 'env')} "
@@ -165,11 +163,6 @@ EXECUTION_KEYS = (
     "eval.gl_backend",
 )
 """config keys that change how a run executes, not what it measures: a resumed run may change them"""
-
-
-ARMS = ("baseline", "gaze", "perturbed", "blobs", "other_episode", "saliency", "uniform", "glc", "location")
-"""every arm an experiment can train; `gazereg.experiment.arms.arm_prior` gives the prior each trains on and
-`gazereg.experiment.arms.gaze_target` what its gaze term supervises"""
 
 
 # ----- presets ------------------------------------------------------------------------------------------------

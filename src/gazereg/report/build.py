@@ -34,6 +34,7 @@ from gazereg.report.tables import (
     verdict,
 )
 from gazereg.runtime.io import atomic_write_json, atomic_write_text
+from gazereg.training.arms import gaze_controls
 from gazereg.training.logger import read_metrics
 
 MIN_TASK_LEVEL_TASKS = 3
@@ -102,8 +103,9 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
     """report.json's content; draws the success and convergence figures into `out/figures`."""
     episodes = outputs.episodes
     success = success_table(episodes)
-    # Each arm against the baseline, and the gaze arm against each of its controls it ran with.
-    controls = {c: gaze_and_control(episodes, spec.arms, c) for c in GAZE_CONTROLS}
+    # Each arm against the baseline, and the gaze arm against each of its controls it ran with (the arms whose
+    # registered role is a control: gazereg.training.arms).
+    controls = {c: gaze_and_control(episodes, spec.arms, c) for c in gaze_controls(spec.arms)}
     controls = {c: records for c, records in controls.items() if records}
     paired = paired_tests(episodes)
     levels = {"seed": unit_level_tests(episodes, "seed")}
@@ -206,10 +208,12 @@ def _header(spec: ReportSpec, outputs: StageOutputs) -> dict[str, Any]:
     }
 
 
-GAZE_CONTROLS = ("perturbed", "location", "uniform", "other_episode")
-"""the gaze arm's controls, each a reference of its own in the paired tests (every arm is also compared with
-the baseline): perturbed gaze (shuffled: wrong locations), location (the same prior, supervising features, not
-attention), uniform (the term without any location), other_episode (another demonstration's gaze)"""
+def __getattr__(name: str) -> Any:
+    """`GAZE_CONTROLS`: every registered arm whose role is a control (`gazereg.training.arms.gaze_controls`),
+    read when asked for, so arms registered after this module was imported count too."""
+    if name == "GAZE_CONTROLS":
+        return gaze_controls()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def gaze_and_control(

@@ -11,7 +11,13 @@ its parameters (or from its name and parameter values):
 
 Built in: `uniform`, `saliency` (`simple`), `perturbed`, `visuomotor` (simulation), `recorded` (eye tracking
 stored with the episode), `glc` (the video gaze estimator), `glc_folds` (cross-fitted GLC: each task's maps from
-a GLC not trained on it). Third-party sources register the same way.
+a GLC not trained on it). Another source comes in one of two ways:
+
+- as a plugin (the way to ship one): an installed package declares it in the entry-point group
+  `gazereg.gaze_sources` (`mygaze = "my_package.gaze:MyGazeParams"`, see `gazereg.runtime.plugins`); a name
+  nobody registered is looked up there and its module imported (which registers the source), in whichever
+  process asks, so `gazereg priors --source mygaze` and an experiment's workers know it;
+- registered in code (`register_gaze_source`), in the process that then makes the priors.
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ import numpy as np
 
 from gazereg.data.store import Episode
 from gazereg.gaze.sources.params import GazeSourceParams, params_from_strings
+from gazereg.runtime import plugins
 from gazereg.runtime.errors import UsageError
 
 
@@ -74,16 +81,37 @@ def register_gaze_source(params: type[P]) -> Callable[[Callable[[P], GazeSource]
     return deco
 
 
+def unregister_gaze_source(name: str) -> None:
+    """Forget source `name` (a built-in registers again when next asked for)."""
+    _REGISTRY.pop(name, None)
+
+
 def available_gaze_sources() -> list[str]:
-    return sorted(set(_REGISTRY) | set(_LAZY))
+    """The registered sources, the built-ins and those installed plugins provide, sorted."""
+    return sorted(set(_REGISTRY) | set(_LAZY) | set(plugins.plugin_names(plugins.GAZE_SOURCES)))
 
 
 def _entry(name: str) -> tuple[type[GazeSourceParams], Factory]:
     if name not in _REGISTRY and name in _LAZY:
         importlib.import_module(_LAZY[name])
     if name not in _REGISTRY:
+        _load_plugin(name)
+    if name not in _REGISTRY:
         raise UsageError(f"unknown gaze source {name!r}; available: {', '.join(available_gaze_sources())}")
     return _REGISTRY[name]
+
+
+def _load_plugin(name: str) -> None:
+    """Import the installed plugin that provides source `name` (its module registers it); TypeError when it
+    does not register `name` after all. Nothing when no plugin provides `name`."""
+    found = plugins.load_plugin(plugins.GAZE_SOURCES, name, "gaze source")
+    if found is None or name in _REGISTRY:
+        return
+    value = plugins.plugin_value(plugins.GAZE_SOURCES, name)
+    raise TypeError(
+        f"{plugins.where(plugins.GAZE_SOURCES, name, value, 'gaze source')} was imported but registered no "
+        f"gaze source {name!r}: its module must call register_gaze_source for a parameters class named {name!r}"
+    )
 
 
 def params_type(name: str) -> type[GazeSourceParams]:
