@@ -122,6 +122,7 @@ def machine_info(device: str, dtype: str) -> dict[str, Any]:
         "device": device,
         "dtype": dtype,
         "gpu": None,
+        "gazereg_commit": _git_commit(),
         "versions": {
             d: _version(d)
             for d in ("torch", "lerobot", "transformers", "accelerate", "numpy", "lerobot_policy_gazereg")
@@ -137,6 +138,25 @@ def machine_info(device: str, dtype: str) -> dict[str, Any]:
             "bf16": torch.cuda.is_bf16_supported(),
         }
     return info
+
+
+def _git_commit() -> str | None:
+    """The checkout's commit (with "+dirty" when tracked files changed), or None outside a git checkout."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10
+        )
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "-uno"], cwd=root, capture_output=True, text=True, timeout=10
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    if head.returncode != 0:
+        return None
+    return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
 
 
 def _meminfo(field: str) -> int | None:
@@ -646,6 +666,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
+def write_json(path: Path, result: dict[str, Any]) -> None:
+    """Write `result` to `path` atomically (a reader never sees a half-written file)."""
+    from gazereg.runtime.io import atomic_write_json
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(path, result)
+
+
 def measure(name: str, args: argparse.Namespace, workdir: Path, bf16: bool) -> dict[str, Any]:
     """The JSON entry of one configuration: its model, and its runs and grid check (or why it was skipped)."""
     t0 = time.perf_counter()
@@ -716,18 +744,16 @@ def main(argv: list[str] | None = None) -> int:
                 print(tb, file=sys.stderr)
             failed = failed or "error" in entry or not entry.get("grid_check", {"ok": True})["ok"]
             result["configs"][name] = entry
+            if args.out is not None:  # after each configuration: a run cut short keeps what it measured
+                write_json(args.out, result)
             gc.collect()
             if args.device == "cuda":
                 torch.cuda.empty_cache()
-    text = json.dumps(result, indent=2, sort_keys=True) + "\n"
     if args.out is not None:
-        from gazereg.runtime.io import atomic_write_text
-
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(args.out, text)
+        write_json(args.out, result)
         print(f"wrote {args.out}", file=sys.stderr)
     if args.out is None:
-        print(text, end="")
+        print(json.dumps(result, indent=2, sort_keys=True))
         print(summary_table(result), file=sys.stderr)
     else:
         print(summary_table(result))
