@@ -208,8 +208,8 @@ BAD_INPUTS = [
         "no camera 'side'",
     ),
     (["compare", "{tmp}/a"], 2, "required"),
-    (["compare", "{tmp}/a", "{tmp}/b"], 2, "is missing"),
-    (["compare", "{runs}/a", "{runs}/b"], 1, "share no evaluated episode"),
+    (["compare", "{tmp}/a", "{tmp}/b"], 2, "is not a folder"),
+    (["compare", "{runs}/a", "{runs}/b"], 2, "share no evaluated episode"),
 ]
 
 
@@ -228,8 +228,11 @@ def _write_store(root: Path) -> EpisodeStore:
 
 
 def _write_run(root: Path, arm: str) -> None:
-    """A finished experiment run as `gazereg compare` reads it: config.json and eval/eval_info.json."""
+    """A finished experiment run as `gazereg compare` reads it: config.json, stage records, eval_info.json."""
     (root / "eval").mkdir(parents=True)
+    (root / "stages").mkdir()
+    for stage in ("demos", "priors", "train", "eval", "converge", "align"):
+        (root / "stages" / f"{stage}.json").write_text("{}")
     (root / "config.json").write_text(json.dumps({"arms": [arm]}))
     episode = {"arm": f"{arm}@s0", "task": "reach-v3", "condition": "clean", "seed": 1000, "success": True}
     (root / "eval" / "eval_info.json").write_text(json.dumps({"episodes": [episode]}))

@@ -1,9 +1,17 @@
 import json
+from pathlib import Path
 
 import pytest
 
-from gazereg.report.compare import compare_markdown, compare_records, compare_runs, main
+from gazereg import cli
+from gazereg.experiment.compare import compare_runs, main
+from gazereg.experiment.finished import STAGES, read_run
+from gazereg.report.compare import compare_markdown, compare_records
 from gazereg.runtime.config import config_diff
+from gazereg.runtime.errors import UsageError
+
+ROOT = Path(__file__).resolve().parents[1]
+ARCHIVE_B, ARCHIVE_C = ROOT / "docs" / "records" / "paper-abl-b", ROOT / "docs" / "records" / "paper-abl-c"
 
 
 def records(arm, successes, condition="clean", task="reach-v3", start=1000, distance=None):
@@ -17,8 +25,12 @@ def records(arm, successes, condition="clean", task="reach-v3", start=1000, dist
 
 
 def write_run(root, name, config, episodes, curves=None):
+    """A finished experiment folder as far as `compare` reads one: its config, stage records, evaluation."""
     run = root / name
     (run / "eval").mkdir(parents=True)
+    (run / "stages").mkdir()
+    for stage in STAGES[:-1]:
+        (run / "stages" / f"{stage}.json").write_text(json.dumps({"seconds": 1.0}))
     (run / "config.json").write_text(json.dumps(config))
     (run / "eval" / "eval_info.json").write_text(json.dumps({"episodes": episodes}))
     if curves is not None:
@@ -74,9 +86,41 @@ def test_compare_runs_cli_writes_markdown_and_json(tmp_path, capsys):
     assert "2/4 = 0.50" in capsys.readouterr().out
 
 
-def test_compare_a_run_without_evaluation_says_which_file(tmp_path):
+def test_compare_a_folder_that_is_no_finished_run_says_so_in_one_line(tmp_path, capsys):
     run = tmp_path / "unfinished"
     run.mkdir()
+    with pytest.raises(UsageError, match=r"neither a finished experiment folder nor an archive of one"):
+        compare_runs(run, ARCHIVE_B)
     (run / "config.json").write_text("{}")
-    with pytest.raises(FileNotFoundError, match=r"eval_info\.json is missing"):
-        compare_runs(run, run)
+    with pytest.raises(UsageError, match=r"unfinished has not finished its demos stage"):
+        compare_runs(ARCHIVE_B, run)
+    assert cli.main(["compare", str(ARCHIVE_B), str(run)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("gazereg compare: error:") and "has not finished its demos stage" in err
+    assert len(err.splitlines()) == 1
+
+
+def test_compare_reads_committed_archives(tmp_path, capsys):
+    """`gazereg compare` on two archives (only eval_info.json.gz, no checkpoints): the baseline against itself
+    pairs every clean and perturbed setup with no discordant pair, and its curves come from report.json."""
+    report = read_run(ARCHIVE_B).report
+    out = tmp_path / "self.md"
+    assert cli.main(["compare", str(ARCHIVE_B), str(ARCHIVE_B), "--out", str(out)]) == 0
+    result = json.loads(out.with_suffix(".json").read_text())
+    assert result["differences"] == {}
+    assert set(result["rows"]) == {f"baseline | {c}" for c in ("clean", "dim:0.7", "gaussian_noise:0.5")}
+    clean = result["rows"]["baseline | clean"]
+    assert clean["pairs"] == report["success"]["baseline"]["clean"]["n"] == 300
+    assert (
+        clean["a"]["successes"]
+        == clean["b"]["successes"]
+        == report["success"]["baseline"]["clean"]["successes"]
+    )
+    assert clean["a_only"] == clean["b_only"] == 0 and clean["mcnemar_p"] == 1.0
+    steps = report["convergence"]["arms"]["baseline"]["steps"]
+    assert result["curves"]["a"]["baseline"]["steps"] == result["curves"]["b"]["baseline"]["steps"] == steps
+    assert "| baseline | clean | 174/300" in capsys.readouterr().out
+    # two archives of other arms share no episode: one line, exit 2
+    assert cli.main(["compare", str(ARCHIVE_B), str(ARCHIVE_C)]) == 2
+    err = capsys.readouterr().err
+    assert "share no evaluated episode" in err and len(err.strip().splitlines()) == 1

@@ -40,9 +40,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "a finished experiment's results without its data or checkpoints, to commit; `pool` reads it",
     ),
     "compare": (
-        "gazereg.report.compare:main",
+        "gazereg.experiment.compare:main",
         "compare two experiment runs on the setups both evaluated (paired tests per arm and condition)",
     ),
+    "presets": ("gazereg.experiment.presets:main", "list every preset of every kind, one line each"),
     "glc": ("gazereg.gaze.glc.cli:main", "train / evaluate the GLC video gaze estimator"),
     "import": (
         "gazereg.data.cli:main",

@@ -2,8 +2,10 @@
 
 `config` holds the configuration and its presets, `arms` what each arm trains on, `demos` and `glc` the
 demos stage's collections and the glc arm's GLC, `records` the saved config and the report's spec, `runner` the
-stages (see `gazereg.experiment.runner`), `pool` one report over folders that each ran some training seeds,
-`reuse` a new folder from another's demos and priors, `cli` the command.
+stages (see `gazereg.experiment.runner`), `finished` the one reader of a finished run folder or its archive
+(`read_run`), `pool` one report over folders that each ran some training seeds, `archive` a finished run's
+records to commit, `compare` two runs side by side, `reuse` a new folder from another's demos and priors,
+`cli` the command.
 Runs are named by `gazereg.report.ids.RunId` (arm, training seed, step).
 """
 
@@ -19,6 +21,7 @@ from gazereg.experiment.config import (
     quick,
     smoke,
 )
+from gazereg.experiment.finished import FinishedRun, read_run
 from gazereg.experiment.runner import STAGES, Experiment
 
 __all__ = [
@@ -26,6 +29,7 @@ __all__ = [
     "STAGES",
     "Experiment",
     "ExperimentConfig",
+    "FinishedRun",
     "PriorSpec",
     "arm_prior",
     "full",
@@ -34,5 +38,6 @@ __all__ = [
     "main",
     "paper",
     "quick",
+    "read_run",
     "smoke",
 ]

@@ -20,30 +20,38 @@ from __future__ import annotations
 import argparse
 import shutil
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
-from gazereg.experiment.config import ExperimentConfig
-from gazereg.experiment.runner import ARCHIVE_RECORD, Experiment
+from gazereg.experiment.finished import (
+    ARCHIVE_RECORD,
+    CONFIG_FILE,
+    EVAL_INFO,
+    METRICS_FILE,
+    REPORT_FILE,
+    STAGES_DIR,
+    read_run,
+    run_dir,
+)
+from gazereg.report.ids import RunId
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_dir, atomic_write_json, gz_path, write_gz_copy
 
-KEPT = ("config.json", "report.json", "report.md", "figures/attention.png")
+KEPT = (CONFIG_FILE, REPORT_FILE, "report.md", "figures/attention.png")
 """files kept as they are, when the folder has them (the other figures a report draws again)"""
-COMPRESSED = ("eval/eval_info.json", "converge/eval_info.json")
+COMPRESSED = (f"eval/{EVAL_INFO}", f"converge/{EVAL_INFO}")
 """files kept compressed (NAME.gz), with every training run's `train/RUN/metrics.jsonl`"""
 
 
-def archived_files(source: Path) -> tuple[list[Path], list[Path]]:
+def archived_files(source: Path, runs: Sequence[RunId]) -> tuple[list[Path], list[Path]]:
     """(files kept as they are, files kept compressed), relative to `source`: see KEPT and COMPRESSED; the
-    stage records too (not the clocks of interrupted stages)."""
+    stage records too (not the clocks of interrupted stages) and the training metrics of `runs`."""
     plain = [Path(name) for name in KEPT if (source / name).is_file()]
     plain += sorted(
-        p.relative_to(source) for p in (source / "stages").glob("*.json") if ".clock." not in p.name
+        p.relative_to(source) for p in (source / STAGES_DIR).glob("*.json") if ".clock." not in p.name
     )
     squeezed = [Path(name) for name in COMPRESSED]
-    squeezed += sorted(
-        p.parent.relative_to(source) / "metrics.jsonl" for p in (source / "train").glob("*/metrics*")
-    )
+    squeezed += [(run_dir(source, run) / METRICS_FILE).relative_to(source) for run in runs]
     return plain, [
         p for p in dict.fromkeys(squeezed) if (source / p).is_file() or gz_path(source / p).is_file()
     ]
@@ -53,11 +61,10 @@ def archive(source: Path, dest: Path) -> Path:
     """Write the archive of the finished experiment in `source` to `dest` (whole or not at all; an existing
     archive there is replaced); returns `dest`. UsageError when `source` has not finished or `dest` is in
     it."""
-    exp = Experiment(ExperimentConfig(out=source))
-    exp.finished()  # names the first unfinished stage
+    run = read_run(source)  # refuses an unfinished folder, naming the first unfinished stage
     if dest.resolve() == source.resolve() or source.resolve() in dest.resolve().parents:
         raise UsageError(f"--out {dest} is inside the run folder {source}: choose a folder outside it")
-    plain, squeezed = archived_files(source)
+    plain, squeezed = archived_files(source, run.runs)
     with atomic_dir(dest) as tmp:
         for rel in plain:
             (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -68,7 +75,7 @@ def archive(source: Path, dest: Path) -> Path:
                 write_gz_copy(source / rel, gz_path(tmp / rel))
             else:  # an archive of an archive
                 shutil.copyfile(gz_path(source / rel), gz_path(tmp / rel))
-        atomic_write_json(tmp / ARCHIVE_RECORD, {"source": str(source), "date": exp.results_date()})
+        atomic_write_json(tmp / ARCHIVE_RECORD, {"source": str(source), "date": run.date})
     return dest
 
 

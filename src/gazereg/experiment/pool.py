@@ -26,6 +26,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from gazereg.experiment.config import PRESETS, ExperimentConfig
+from gazereg.experiment.finished import CONFIG_FILE, POOLED_RECORD, read_run
 from gazereg.experiment.records import report_spec
 from gazereg.experiment.runner import Experiment
 from gazereg.report.build import StageOutputs, build_report, write_report
@@ -42,7 +43,8 @@ def source_outputs(cfg: ExperimentConfig, preset: str, source: Path) -> tuple[li
     unknown = [a for a in exp.cfg.arms if a not in cfg.arms]
     if unknown:
         raise UsageError(f"--runs: {source} trained {unknown}, not in --arms {list(cfg.arms)}")
-    return list(exp.run_dirs()), exp.stage_outputs(exp.finished())
+    run = read_run(source)
+    return list(run.runs), run.stage_outputs()
 
 
 def merge_outputs(sources: Sequence[Path], outputs: Sequence[StageOutputs], out: Path) -> StageOutputs:
@@ -113,9 +115,9 @@ def pool(cfg: ExperimentConfig, preset: str, sources: Sequence[Path]) -> Path:
     merged = merge_outputs([Path(s) for s in sources], outputs, out)
     report = build_report(report_spec(cfg, preset), merged, out)
     report["pooled_from"] = [str(s) for s in sources]
-    save_config(cfg, out / "config.json")
+    save_config(cfg, out / CONFIG_FILE)
     atomic_write_json(
-        out / "pooled.json", {"folders": report["pooled_from"], "runs": [list(map(str, g)) for g in runs]}
+        out / POOLED_RECORD, {"folders": report["pooled_from"], "runs": [list(map(str, g)) for g in runs]}
     )
     return write_report(out, report)
 

@@ -39,12 +39,10 @@ information the prior carries).
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
-from datetime import datetime, timezone
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -58,29 +56,34 @@ from gazereg.evaluation.rollout import evaluate
 from gazereg.experiment.arms import PriorSpec, arm_prior, gaze_prior, gaze_target, trains_glc
 from gazereg.experiment.config import EXECUTION_KEYS, ExperimentConfig
 from gazereg.experiment.demos import collection_result, demo_collections, demo_stores
+from gazereg.experiment.finished import (
+    CONFIG_FILE,
+    EVAL_INFO,
+    STAGES,
+    read_run,
+    read_saved_config,
+    read_stage,
+    run_dir,
+    stage_marker,
+)
 from gazereg.experiment.glc import train_glc, train_glc_folds
 from gazereg.experiment.preflight import preflight
 from gazereg.experiment.records import report_spec, with_added_keys
 from gazereg.gaze.priors import PriorsConfig, make_priors
 from gazereg.policies import load_policy
-from gazereg.report.build import StageOutputs, build_report, write_report
+from gazereg.report.build import build_report, write_report
 from gazereg.report.figures import attention_panels, plot_attention
 from gazereg.report.ids import RunId
 from gazereg.runtime.clock import ResumableClock
 from gazereg.runtime.config import check_same_config, save_config, to_dict
 from gazereg.runtime.errors import Terminated, UsageError, annotate_interruption
-from gazereg.runtime.io import atomic_write_json, read_text, sweep_stale_temps
+from gazereg.runtime.io import atomic_write_json, sweep_stale_temps
 from gazereg.runtime.pool import exit_with_parent
 from gazereg.training.checkpoint import latest_checkpoint, list_checkpoints
 from gazereg.training.config import TrainConfig
 from gazereg.training.loop import train
 
 log = logging.getLogger(__name__)
-
-
-STAGES = ("demos", "priors", "train", "eval", "converge", "align", "report")
-ARCHIVE_RECORD = "archive.json"
-"""what an archived run folder (`gazereg.experiment.archive`) says of its source, the results' date among it"""
 
 
 class Experiment:
@@ -93,11 +96,11 @@ class Experiment:
 
     # ----- bookkeeping ------------------------------------------------------------------------------------
     def marker(self, stage: str) -> Path:
-        return self.out / "stages" / f"{stage}.json"
+        return stage_marker(self.out, stage)
 
     def done(self, stage: str) -> dict[str, Any] | None:
-        m = self.marker(stage)
-        return json.loads(m.read_text()) if m.exists() else None
+        """`stage`'s record, or None when it has not finished in this folder."""
+        return read_stage(self.out, stage)
 
     def finish(self, stage: str, result: dict[str, Any], seconds: float) -> dict[str, Any]:
         atomic_write_json(self.marker(stage), {**result, "seconds": seconds})
@@ -111,11 +114,11 @@ class Experiment:
         """Refuse to continue a run folder whose finished stages were made with another configuration: they
         would be skipped and reported as this configuration's results. A key added to the configuration
         since the folder was made counts as its default (`records.with_added_keys`)."""
-        saved = self.out / "config.json"
-        if not saved.exists():
+        saved = read_saved_config(self.out)
+        if saved is None:
             return
         check_same_config(
-            with_added_keys(json.loads(saved.read_text()), to_dict(ExperimentConfig()), to_dict(self.cfg)),
+            with_added_keys(saved, to_dict(ExperimentConfig()), to_dict(self.cfg)),
             self.cfg,
             ("out", *EXECUTION_KEYS),
             self.out,
@@ -125,29 +128,15 @@ class Experiment:
     def sibling(self, folder: Path, flag: str) -> Experiment:
         """The experiment in `folder`, refused (UsageError naming `flag` and the differing keys) unless it ran
         this configuration but for its training seeds and arms (and execution keys)."""
-        saved_file = folder / "config.json"
-        if not saved_file.is_file():
-            raise UsageError(f"{flag}: {folder} holds no experiment (no config.json)")
-        saved = json.loads(saved_file.read_text())
+        saved = read_saved_config(folder)
+        if saved is None:
+            raise UsageError(f"{flag}: {folder} holds no experiment (no {CONFIG_FILE})")
         seeds, arms = tuple(int(s) for s in saved.get("train_seeds", ())), tuple(saved.get("arms", ()))
         other = Experiment(replace(self.cfg, out=folder, train_seeds=seeds, arms=arms), self.preset)
         other.check_resumable(
             f"{flag} takes folders of the same experiment with other training seeds or arms."
         )
         return other
-
-    def finished(self) -> dict[str, Any]:
-        """Every stage's record but the report's, read back from a finished run folder (their times into
-        `times`); a UsageError names the first stage not finished."""
-        results = {}
-        for stage in STAGES[:-1]:
-            prev = self.done(stage)
-            if prev is None:
-                raise UsageError(
-                    f"{self.out} has not finished its {stage} stage: run the experiment there first"
-                )
-            results[stage], self.times[stage] = prev, prev.get("seconds", 0.0)
-        return results
 
     def run(self, check: bool = True) -> dict[str, Any]:
         """Every stage not finished yet, then the report; `check`: run `preflight` first (the command runs it
@@ -157,7 +146,7 @@ class Experiment:
             preflight(self.cfg)
         self.out.mkdir(parents=True, exist_ok=True)
         sweep_stale_temps(self.out)  # what killed writers of an earlier attempt left
-        save_config(self.cfg, self.out / "config.json")
+        save_config(self.cfg, self.out / CONFIG_FILE)
         results: dict[str, Any] = {}
         for stage in STAGES:
             prev = self.done(stage)
@@ -169,7 +158,7 @@ class Experiment:
             log.info("stage %s ...", stage)
             # counts the attempts a kill interrupted too, so a resumed stage reports its whole time
             try:
-                with ResumableClock(self.out / "stages" / f"{stage}.clock.json") as clock:
+                with ResumableClock(self.marker(stage).with_suffix(".clock.json")) as clock:
                     res = getattr(self, f"stage_{stage}")(results)
             except (KeyboardInterrupt, Terminated) as e:  # the clock has saved this attempt's time
                 annotate_interruption(e, f"stage {stage}", "rerun the same command to resume")
@@ -236,7 +225,7 @@ class Experiment:
     def run_dirs(self) -> dict[RunId, Path]:
         """Every run (arm x training seed) and its training folder."""
         return {
-            RunId(arm, seed): self.out / "train" / f"{arm}_s{seed}"
+            RunId(arm, seed): run_dir(self.out, RunId(arm, seed))
             for arm in self.cfg.arms
             for seed in self.cfg.train_seeds
         }
@@ -294,7 +283,7 @@ class Experiment:
     ) -> dict[str, Any]:
         """Evaluate `checkpoints` (each named by its run) into `out/folder` (`eval_config`)."""
         info = evaluate(self.eval_config(folder, checkpoints, **eval_changes))
-        return {"eval_info": str(self.out / folder / "eval_info.json"), "episodes": len(info["episodes"])}
+        return {"eval_info": str(self.out / folder / EVAL_INFO), "episodes": len(info["episodes"])}
 
     def stage_eval(self, results: dict[str, Any]) -> dict[str, Any]:
         return self.evaluate_checkpoints(self.final_checkpoints(results), "eval")
@@ -341,41 +330,12 @@ class Experiment:
         plot_attention(*attention_panels(store, first, gaze, self.cfg.camera, self.cfg.figure_frames), path)
         return str(path.relative_to(self.out))
 
-    def results_date(self) -> str:
-        """When the results were produced: the last stage before the report finished (a rerun that only
-        rewrites the report keeps that date)."""
-        archived = self.out / ARCHIVE_RECORD
-        if archived.exists():  # its files' times are when they were copied or checked out
-            return str(json.loads(archived.read_text())["date"])
-        times = [self.marker(s).stat().st_mtime for s in STAGES[:-1] if self.marker(s).exists()]
-        when = datetime.fromtimestamp(max(times), timezone.utc) if times else datetime.now(timezone.utc)
-        return when.strftime("%Y-%m-%d %H:%M UTC")
-
-    def stage_outputs(self, results: dict[str, Any]) -> StageOutputs:
-        """What the finished stages produced, for the report."""
-        converged = results["converge"]["eval_info"] is not None
-        train_runs = results["train"]["runs"]
-        return StageOutputs(
-            episodes=_episodes(self.out / "eval"),
-            checkpoint_episodes=_episodes(self.out / "converge") if converged else [],
-            demos=results["demos"]["train"],
-            glc=results["priors"].get("glc"),
-            final_metrics={RunId.parse(n): r.get("final_metrics", {}) for n, r in train_runs.items()},
-            metrics_files={run: d / "metrics.jsonl" for run, d in self.run_dirs().items()},
-            alignment={RunId.parse(n): v for n, v in results["align"]["alignment"].items()},
-            attention_figure=results["align"]["figure"],
-            date=self.results_date(),
-            stage_times=dict(self.times),
-        )
-
-    def stage_report(self, results: dict[str, Any]) -> dict[str, Any]:
-        report = build_report(report_spec(self.cfg, self.preset), self.stage_outputs(results), self.out)
+    def stage_report(self, _: dict[str, Any]) -> dict[str, Any]:
+        """report.json, report.md and the figures, from the finished stages' records as `read_run` reads
+        them (so a report rebuilt later from the folder, or from its archive, is this one)."""
+        outputs = read_run(self.out).stage_outputs()
+        report = build_report(report_spec(self.cfg, self.preset), outputs, self.out)
         return {"report": str(write_report(self.out, report))}
-
-
-def _episodes(eval_dir: Path) -> list[dict[str, Any]]:
-    """The evaluation records of an evaluation folder's eval_info.json (its compressed copy in an archive)."""
-    return json.loads(read_text(eval_dir / "eval_info.json"))["episodes"]
 
 
 def _train_one(cfg: TrainConfig) -> dict[str, Any]:

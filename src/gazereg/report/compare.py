@@ -1,39 +1,23 @@
-"""Two experiment runs side by side: the same arms, evaluated on the same setups, after different training
-(a longer budget, another gaze weight, other layers ...).
+"""Two experiment runs side by side, from their records: the same arms, evaluated on the same setups, after
+different training (a longer budget, another gaze weight, other layers ...).
 
 The question it answers is "did the change move success?", e.g. whether training longer still raises it.
 Episodes pair by (arm, training seed, task, condition, setup seed), so each arm gets an exact McNemar test of
 run B against run A on the setups both evaluated, and a paired difference of the closest approach (metres)
-where the simulator records one.
+where the simulator records one. The command, which reads the two run folders (or their archives), is
+`gazereg.experiment.compare`:
 
     gazereg compare runs/paper runs/paper6k [--out runs/paper6k/compare.md]
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 from gazereg.report.comparisons import rate_difference
 from gazereg.report.ids import RunId
 from gazereg.report.tables import paired_distance_tests, paired_tests, run_of, success_table
 from gazereg.runtime.config import config_diff
-from gazereg.runtime.errors import UsageError
-from gazereg.runtime.io import atomic_write_json, atomic_write_text
-
-
-def load_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """(experiment config, evaluation episodes) of a finished experiment run directory."""
-    run_dir = Path(run_dir)
-    config, info = run_dir / "config.json", run_dir / "eval" / "eval_info.json"
-    for path in (config, info):
-        if not path.is_file():
-            raise FileNotFoundError(
-                f"{path} is missing: is {run_dir} an experiment run whose eval stage finished?"
-            )
-    return json.loads(config.read_text()), json.loads(info.read_text())["episodes"]
 
 
 def _relabel(records: list[dict[str, Any]], arm: str, label: str) -> list[dict[str, Any]]:
@@ -90,27 +74,28 @@ def _seed_span(records: list[dict[str, Any]]) -> str:
     return f"{seeds[0]}..{seeds[-1]}" if seeds else "none"
 
 
-def success_curves(run_dir: Path) -> dict[str, dict[str, list[Any]]]:
-    """{arm: {steps, rates}}: a run's clean success at its training checkpoints, from its report.json
-    (empty when the run has no report yet)."""
-    path = Path(run_dir) / "report.json"
-    if not path.is_file():
-        return {}
-    arms = json.loads(path.read_text()).get("convergence", {}).get("arms", {})
+def success_curves(report: dict[str, Any] | None) -> dict[str, dict[str, list[Any]]]:
+    """{arm: {steps, rates}}: a run's clean success at its training checkpoints, from its report.json's
+    content (empty when the run has no report yet: None)."""
+    arms = (report or {}).get("convergence", {}).get("arms", {})
     return {arm: {"steps": c["steps"], "rates": c["rates"]} for arm, c in arms.items()}
 
 
-def compare_runs(run_a: Path, run_b: Path) -> dict[str, Any]:
-    """Both runs' config differences, the per-arm, per-condition paired comparison of B against A, and each
-    run's success-versus-steps curve."""
-    cfg_a, rec_a = load_run(run_a)
-    cfg_b, rec_b = load_run(run_b)
+def comparison(
+    names: tuple[str, str],
+    configs: tuple[dict[str, Any], dict[str, Any]],
+    records: tuple[list[dict[str, Any]], list[dict[str, Any]]],
+    reports: tuple[dict[str, Any] | None, dict[str, Any] | None],
+) -> dict[str, Any]:
+    """Runs A and B compared (each given as its name, saved config, evaluation records and report or None):
+    their config differences, the per-arm, per-condition paired comparison of B against A, and each run's
+    success-versus-steps curve."""
     return {
-        "a": str(run_a),
-        "b": str(run_b),
-        "differences": config_diff(cfg_a, cfg_b, ignore=("out",)),
-        "rows": compare_records(rec_a, rec_b),
-        "curves": {"a": success_curves(run_a), "b": success_curves(run_b)},
+        "a": names[0],
+        "b": names[1],
+        "differences": config_diff(configs[0], configs[1], ignore=("out",)),
+        "rows": compare_records(*records),
+        "curves": {"a": success_curves(reports[0]), "b": success_curves(reports[1])},
     }
 
 
@@ -154,29 +139,3 @@ def compare_markdown(result: dict[str, Any], level: int = 2) -> str:
         "(two-sided) on the discordant pairs.",
     ]
     return "\n".join(lines) + "\n"
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse whose usage errors are `UsageError`s: `gazereg` prints them as one line and exits 2."""
-
-    def error(self, message: str) -> NoReturn:
-        raise UsageError(f"{message} (gazereg compare --help)")
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = _Parser(
-        prog="gazereg compare",
-        description="Compare two experiment runs evaluated on the same setups (paired by training seed, task, "
-        "condition and setup seed).",
-    )
-    ap.add_argument("run_a", type=Path, help="the reference run directory (A)")
-    ap.add_argument("run_b", type=Path, help="the changed run directory (B)")
-    ap.add_argument("--out", type=Path, help="write the markdown here (and the JSON beside it, .json)")
-    args = ap.parse_args(argv)
-    result = compare_runs(args.run_a, args.run_b)
-    text = compare_markdown(result)
-    if args.out:
-        atomic_write_text(args.out, text)
-        atomic_write_json(args.out.with_suffix(".json"), result)
-    print(text, end="")
-    return 0
