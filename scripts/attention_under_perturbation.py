@@ -13,7 +13,7 @@ python scripts/attention_under_perturbation.py runs/a runs/b --condition tint:1 
 
 import argparse
 import dataclasses
-import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +24,10 @@ from gazereg.data.store import EpisodeStore
 from gazereg.envs.collect import collect
 from gazereg.envs.collect_config import CollectConfig
 from gazereg.evaluation.alignment import attention_maps, attention_shift
+from gazereg.experiment.demos import demo_stores
+from gazereg.experiment.finished import FinishedRun, read_run
 from gazereg.policies import load_policy
+from gazereg.runtime.errors import UsageError, report_errors
 from gazereg.runtime.io import atomic_write_json, atomic_write_text
 
 
@@ -33,15 +36,15 @@ def slug(condition: str) -> str:
     return condition.replace(":", "_").replace("+", "-")
 
 
-def render_heldout(run: Path, condition: str) -> Path:
+def render_heldout(run: FinishedRun, condition: str) -> Path:
     """The experiment's held-out store collected again with the settings it was collected with (its
-    collect/config.json: setups, camera, size, steps), rendered under `condition`."""
-    saved = json.loads((run / "heldout" / "collect" / "config.json").read_text())
+    collection config: setups, camera, size, steps), rendered under `condition`."""
+    saved = run.collect_config("heldout")
     names = {f.name for f in dataclasses.fields(CollectConfig)}
     clean = CollectConfig(
         **{k: tuple(v) if isinstance(v, list) else v for k, v in saved.items() if k in names}
     )
-    out = run / f"heldout-{slug(condition)}"
+    out = run.path / f"heldout-{slug(condition)}"
     report = collect(dataclasses.replace(clean, out=out, perturbation=condition, progress=False))
     if not report.complete:
         raise SystemExit(f"{out}: the expert did not solve every held-out setup under {condition}")
@@ -103,51 +106,44 @@ def markdown(runs: str, condition: str, rows: dict[str, dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def checkpoints(run: Path) -> dict[str, str]:
-    """{run id: final checkpoint} of a finished experiment folder."""
-    if not (run / "stages" / "train.json").exists():
-        raise SystemExit(f"{run}: no finished train stage (stages/train.json)")
-    return {
-        n: r["checkpoint"] for n, r in json.loads((run / "stages" / "train.json").read_text())["runs"].items()
-    }
-
-
-def analyse(run: Path, condition: str) -> tuple[list[int], dict[str, dict[str, Any]]]:
+def analyse(run: FinishedRun, condition: str) -> tuple[list[int], dict[str, dict[str, Any]]]:
     """(the held-out episodes compared, {run id: attention shift and action losses}) for `run`'s final
     checkpoints under `condition`."""
-    cfg, ckpts = json.loads((run / "config.json").read_text()), checkpoints(run)
-    stores = EpisodeStore(run / "heldout"), EpisodeStore(render_heldout(run, condition))
+    ckpts = run.final_checkpoints()
+    stores = EpisodeStore(demo_stores(run.path)["heldout"]), EpisodeStore(render_heldout(run, condition))
     episodes = same_trajectories(*stores)
-    layers = cfg["train"]["gaze"]["layers"]
     rows = {}
     for name, ckpt in ckpts.items():
         policy = load_policy(ckpt)
-        clean, pert = (attention_maps(policy, s, episodes, cfg["camera"], None, layers) for s in stores)
-        rows[name] = attention_shift(clean, pert)
-        rows[name]["action_loss"] = dict(
+        clean, pert = (
+            attention_maps(policy, s, episodes, run.camera, None, list(run.gaze_layers)) for s in stores
+        )
+        rows[str(name)] = attention_shift(clean, pert)
+        rows[str(name)]["action_loss"] = dict(
             zip(("clean", "perturbed"), (action_loss(policy, s, episodes) for s in stores))
         )
-        print(name, rows[name]["agreement"], rows[name]["action_loss"], flush=True)
+        print(name, rows[str(name)]["agreement"], rows[str(name)]["action_loss"], flush=True)
     return episodes, rows
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("run_dirs", type=Path, nargs="+", help="finished `gazereg experiment` folders")
     ap.add_argument("--condition", default="dim:0.7", help="a perturbation spec, as in `gazereg eval`")
     ap.add_argument(
         "--out", type=Path, help="the markdown (JSON beside it); default RUN/attention-<condition>.md"
     )
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     if args.out is None and len(args.run_dirs) > 1:
-        raise SystemExit("several run folders need --out (where the one table goes)")
+        raise UsageError("several run folders need --out (where the one table goes)")
     out = args.out or args.run_dirs[0] / f"attention-{slug(args.condition)}.md"
-    names = [n for run in args.run_dirs for n in checkpoints(run)]
+    runs = [read_run(run) for run in args.run_dirs]
+    names = [str(n) for run in runs for n in run.final_checkpoints()]
     if len(set(names)) < len(names):
-        raise SystemExit(f"a run id is in more than one folder: {sorted(names)}")
+        raise UsageError(f"a run id is in more than one folder: {sorted(names)}")
     episodes, rows = {}, {}
-    for run in args.run_dirs:
-        episodes[str(run)], found = analyse(run, args.condition)
+    for path, run in zip(args.run_dirs, runs):
+        episodes[str(path)], found = analyse(run, args.condition)
         rows.update(found)
     atomic_write_json(
         out.with_suffix(".json"), {"condition": args.condition, "episodes": episodes, "runs": rows}
@@ -155,7 +151,8 @@ def main() -> None:
     text = markdown(", ".join(map(str, args.run_dirs)), args.condition, rows)
     atomic_write_text(out, text)
     print(text)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(report_errors("attention_under_perturbation", main, sys.argv[1:], verbose=False))

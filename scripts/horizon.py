@@ -15,37 +15,28 @@ horizon.json, horizon.md}; the evaluation resumes episode by episode.
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
 
 from gazereg.evaluation.config import EvalConfig
 from gazereg.evaluation.rollout import evaluate
+from gazereg.experiment.finished import FinishedRun, read_run
 from gazereg.report.ids import RunId
+from gazereg.runtime.errors import UsageError, report_errors
 from gazereg.runtime.io import atomic_write_json, atomic_write_text
 
 
-def long_eval_config(run: Path, max_steps: int) -> tuple[EvalConfig, int]:
-    """(the long evaluation of `run`'s final checkpoints, the experiment's own step limit)."""
-    cfg = json.loads((run / "config.json").read_text())
-    ev = cfg["eval"]
-    if max_steps <= ev["max_steps"]:
-        raise SystemExit(f"--max-steps {max_steps} is not longer than the experiment's {ev['max_steps']}")
-    runs = json.loads((run / "stages" / "train.json").read_text())["runs"]
-    return EvalConfig(
-        checkpoints=tuple(f"{name}={r['checkpoint']}" for name, r in runs.items()),
-        tasks=tuple(cfg["tasks"]),
-        episodes=ev["episodes"],
-        seed_start=ev["seed_start"],
-        conditions=("clean",),
-        max_steps=max_steps,
-        workers=ev["workers"],
-        batch=ev.get("batch"),
-        videos=0,
-        out=run / f"horizon{max_steps}",
-        env=cfg["env"],
-    ), ev["max_steps"]
+def long_eval_config(run: FinishedRun, max_steps: int) -> tuple[EvalConfig, int]:
+    """(the long evaluation of `run`'s final checkpoints, the experiment's own step limit). UsageError when
+    `max_steps` is not longer, or `run` is an archive (no checkpoints to roll out)."""
+    if max_steps <= run.max_steps:
+        raise UsageError(f"--max-steps {max_steps} is not longer than the experiment's {run.max_steps}")
+    cfg = run.eval_config(
+        run.path / f"horizon{max_steps}", conditions=("clean",), max_steps=max_steps, videos=0
+    )
+    return cfg, run.max_steps
 
 
 def tally(long: list[dict[str, Any]], short: list[dict[str, Any]], limit: int) -> dict[str, dict[str, int]]:
@@ -84,20 +75,20 @@ def markdown(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("run", type=Path, help="a finished experiment folder (its --out)")
     ap.add_argument("--max-steps", type=int, default=500)
-    a = ap.parse_args()
+    a = ap.parse_args(argv)
     t0 = time.time()
-    cfg, short = long_eval_config(a.run, a.max_steps)
+    run = read_run(a.run)
+    cfg, short = long_eval_config(run, a.max_steps)
     long = evaluate(cfg)["episodes"]
-    own = json.loads((a.run / "eval" / "eval_info.json").read_text())["episodes"]
     result = {
         "run": str(a.run),
         "short_steps": short,
         "long_steps": a.max_steps,
-        "arms": tally(long, own, short),
+        "arms": tally(long, run.episodes(), short),
         "command": f"python scripts/horizon.py {a.run} --max-steps {a.max_steps}",
         "wall_s": round(time.time() - t0, 1),
     }
@@ -108,4 +99,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(report_errors("horizon", main, sys.argv[1:], verbose=False))

@@ -5,8 +5,8 @@ unseen setups; a condition every folder already evaluated is read from its recor
     python scripts/robustness_sweep.py runs/paper-abl-a runs/paper-abl-b runs/paper-abl-c runs/paper-abl-d \
         --out runs/robustness
 
-The folders must share tasks, setups and step limit (else one line naming the difference, exit 2) and name
-each run once. Reports success per arm and condition (Wilson 95%) and its drop from clean, then, per
+The folders (or their archives, `gazereg archive`, when every condition asked for is in their records) must
+share tasks, setups and step limit (else one line naming the difference, exit 2) and name each run once. Reports success per arm and condition (Wilson 95%) and its drop from clean, then, per
 condition, each arm minus the baseline and the gaze arm minus each of its controls on the same setups: the
 pooled paired difference [95% CI], exact McNemar p, and how many training seeds are above / below 0.
 Writes OUT/eval (the new rollouts: a rerun resumes them), OUT/robustness.json and OUT/robustness.md.
@@ -15,7 +15,6 @@ Writes OUT/eval (the new rollouts: a rerun resumes them), OUT/robustness.json an
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -23,6 +22,7 @@ from typing import Any
 
 from gazereg.evaluation.config import ROBUSTNESS_CONDITIONS, EvalConfig
 from gazereg.evaluation.rollout import evaluate
+from gazereg.experiment.finished import read_run
 from gazereg.report.build import GAZE_CONTROLS, gaze_and_control
 from gazereg.report.comparisons import rate_difference
 from gazereg.report.markdown import drop_lines, success_table_lines
@@ -36,26 +36,24 @@ from gazereg.report.tables import (
     unit_level_tests,
 )
 from gazereg.runtime.errors import UsageError, report_errors
-from gazereg.runtime.io import atomic_write_json, atomic_write_text, read_text
+from gazereg.runtime.io import atomic_write_json, atomic_write_text
 
 SHARED = ("tasks", "episodes", "seed_start", "max_steps", "env")
 """what every run folder must agree on for its episodes to pair with the others'"""
 
 
 def load_run(run: Path) -> dict[str, Any]:
-    """A finished experiment folder: its evaluation settings (SHARED, conditions, workers, batch), final
-    checkpoints {run id: dir} and own evaluation records."""
-    if not (run / "config.json").exists() or not (run / "stages" / "train.json").exists():
-        raise UsageError(f"{run} is not a finished experiment folder (no config.json or stages/train.json)")
-    cfg = json.loads((run / "config.json").read_text())
-    runs = json.loads((run / "stages" / "train.json").read_text())["runs"]
-    ev = cfg["eval"]
+    """A finished experiment folder or its archive (`gazereg.experiment.read_run`): its evaluation settings
+    (SHARED, conditions, workers, batch), final checkpoints {run id: dir, or None in an archive} and own
+    evaluation records."""
+    finished = read_run(run)
+    ev = finished.config["eval"]
     return {
-        "tasks": tuple(cfg["tasks"]),
-        "env": cfg["env"],
+        "tasks": finished.tasks,
+        "env": finished.env,
         **{k: ev[k] for k in ("episodes", "seed_start", "max_steps", "conditions", "workers", "batch")},
-        "checkpoints": {name: r["checkpoint"] for name, r in runs.items()},
-        "records": json.loads(read_text(run / "eval" / "eval_info.json"))["episodes"],
+        "checkpoints": {str(name): path for name, path in finished.checkpoints.items()},
+        "records": finished.episodes(),
     }
 
 
@@ -159,6 +157,12 @@ def main(argv: list[str] | None = None) -> int:
     runs = {run: load_run(run) for run in args.runs}
     rollout, records = plan(runs, conditions)
     info = next(iter(runs.values()))
+    archives = [str(run) for run, r in runs.items() if None in r["checkpoints"].values()]
+    if rollout and archives:
+        raise UsageError(
+            f"{', '.join(rollout)} must be rolled out, but {', '.join(archives)} keep no checkpoints (archives): "
+            "give the run folders, or only conditions every folder evaluated"
+        )
     if rollout:
         cfg = EvalConfig(
             checkpoints=tuple(f"{n}={d}" for r in runs.values() for n, d in r["checkpoints"].items()),

@@ -36,7 +36,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from gazereg.experiment.finished import FinishedRun, Record, read_run
 from gazereg.report.ids import RunId
+from gazereg.runtime.errors import UsageError
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs" / "tuning"
@@ -107,8 +109,8 @@ def command(name: str, overrides: list[str] | None = None) -> list[str]:
     return ["gazereg", "experiment", *BASE, *extra, "--out", f"runs/tune/{name}"]
 
 
-def validation_successes(episodes: list[dict[str, Any]]) -> dict[str, dict[str, list[int]]]:
-    """{task: {training seed: [successes, episodes]}} of the clean episodes of an eval_info.json."""
+def validation_successes(episodes: list[Record]) -> dict[str, dict[str, list[int]]]:
+    """{task: {training seed: [successes, episodes]}} of the clean ones of an experiment's evaluation records."""
     out: dict[str, dict[str, list[int]]] = {}
     for ep in episodes:
         if ep["condition"] != "clean":
@@ -120,26 +122,33 @@ def validation_successes(episodes: list[dict[str, Any]]) -> dict[str, dict[str, 
     return out
 
 
+def candidate_result(run: FinishedRun, name: str, change: str, overrides: list[str]) -> dict[str, Any]:
+    """Candidate `name`'s record (docs/tuning/baseline/<name>.json, less this call's wall time) from its
+    finished experiment `run` (a run folder or its archive): its command, stage times, machine, date and
+    validation successes per task and training seed."""
+    report = run.report
+    if report is None:
+        raise UsageError(f"{run.path} has no report.json: rerun its experiment to finish the report stage")
+    return {
+        "candidate": name,
+        "change": change,
+        "overrides": overrides,
+        "command": shlex.join(command(name, overrides)),
+        "stage_seconds": report["stage_times_s"],
+        "wall_time_s": report["wall_time_s"],
+        "machine": report["machine"]["summary"],
+        "date": report["date"],
+        "validation": validation_successes(run.episodes()),
+    }
+
+
 def run_candidate(name: str, change: str, overrides: list[str]) -> Path:
     """Run (or resume) candidate `name`; write and return docs/tuning/baseline/<name>.json."""
     cmd = command(name, overrides)
     t0 = time.time()
     subprocess.run([sys.executable, "-m", "gazereg.cli", *cmd[1:]], cwd=ROOT, check=True)
-    run = ROOT / "runs" / "tune" / name
-    report = json.loads((run / "report.json").read_text())
-    episodes = json.loads((run / "eval" / "eval_info.json").read_text())["episodes"]
-    result = {
-        "candidate": name,
-        "change": change,
-        "overrides": overrides,
-        "command": shlex.join(cmd),
-        "wall_s_this_call": round(time.time() - t0, 1),
-        "stage_seconds": report["stage_times_s"],
-        "wall_time_s": report["wall_time_s"],
-        "machine": report["machine"]["summary"],
-        "date": report["date"],
-        "validation": validation_successes(episodes),
-    }
+    result = candidate_result(read_run(ROOT / "runs" / "tune" / name), name, change, overrides)
+    result["wall_s_this_call"] = round(time.time() - t0, 1)
     path = result_path(name)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".json.tmp")

@@ -8,11 +8,10 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.sim
-
 SCRIPT = Path(__file__).parents[1] / "scripts" / "horizon.py"
 
 
+@pytest.mark.sim
 def test_horizon_counts_successes_within_both_limits_and_reproduces_the_short_one(finished_experiment):
     out = finished_experiment
     subprocess.run([sys.executable, str(SCRIPT), str(out), "--max-steps", "40"], check=True, cwd=out.parent)
@@ -27,7 +26,10 @@ def test_horizon_counts_successes_within_both_limits_and_reproduces_the_short_on
     bad = subprocess.run(
         [sys.executable, str(SCRIPT), str(out), "--max-steps", "15"], capture_output=True, text=True
     )
-    assert bad.returncode != 0 and "not longer than the experiment's 15" in bad.stderr
+    assert (
+        bad.returncode == 2
+        and "horizon: error: --max-steps 15 is not longer than the experiment's 15" in bad.stderr
+    )
 
 
 def test_tally_splits_successes_by_the_short_limit_and_counts_outcomes_that_differ():
@@ -47,9 +49,36 @@ def test_tally_splits_successes_by_the_short_limit_and_counts_outcomes_that_diff
     assert t["baseline"] == dict(episodes=1, within_short=1, within_long=1, only_long=0, mismatches=0)
 
 
+ARCHIVE = Path(__file__).parents[1] / "docs" / "records" / "paper-abl-b"
+
+
+def test_horizon_reads_an_archive_and_refuses_to_roll_it_out_in_one_line(capsys):
+    """A committed archive holds only eval_info.json.gz and no checkpoints: the experiment's own clean
+    outcomes and step limit are read from it; the long evaluation is refused (one line, exit 2)."""
+    sys.path.insert(0, str(SCRIPT.parent))
+    import horizon
+
+    from gazereg.experiment import read_run
+    from gazereg.runtime.errors import UsageError, report_errors
+
+    run = read_run(ARCHIVE)
+    clean = [r for r in run.episodes() if r["condition"] == "clean"]
+    t = horizon.tally(clean, run.episodes(), run.max_steps)  # the experiment against itself
+    report = run.report["success"]["baseline"]["clean"]
+    assert t["baseline"]["episodes"] == report["n"] == 300 and t["baseline"]["mismatches"] == 0
+    assert t["baseline"]["within_short"] == t["baseline"]["within_long"] == report["successes"]
+    with pytest.raises(UsageError, match="not longer than the experiment's 120"):
+        horizon.long_eval_config(run, 100)
+    assert report_errors("horizon", horizon.main, [str(ARCHIVE)], verbose=False) == 2
+    err = capsys.readouterr().err
+    assert "paper-abl-b is an archive" in err and "no checkpoints" in err and len(err.splitlines()) == 1
+    assert not (ARCHIVE / "horizon500").exists()
+
+
 EXPERT_SCRIPT = Path(__file__).parents[1] / "scripts" / "expert_horizon.py"
 
 
+@pytest.mark.sim
 def test_expert_horizon_counts_the_experts_steps_on_the_evaluation_setups(tmp_path):
     md = tmp_path / "expert.md"
     args = [sys.executable, str(EXPERT_SCRIPT), "--preset", "quick", "--episodes", "2", "--max-steps", "200"]

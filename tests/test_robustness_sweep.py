@@ -103,3 +103,28 @@ def test_the_sweep_rolls_out_the_new_condition_and_reads_clean_from_the_experime
         [*args[:3], "--conditions", "dim:0.7", "--out", str(sweep)], capture_output=True, text=True
     )
     assert bad.returncode == 2 and "must include clean" in bad.stderr
+
+
+ARCHIVES = [ROOT / "docs" / "records" / name for name in ("paper-abl-b", "paper-abl-c")]
+
+
+def test_the_sweep_reads_archives_when_every_condition_is_in_their_records(tmp_path, capsys):
+    """Committed archives (evaluation records compressed, no checkpoints): conditions both evaluated are read,
+    none rolled out; a condition that would need a rollout is refused in one line, before any work."""
+    out = tmp_path / "sweep"
+    args = [*map(str, ARCHIVES), "--conditions", "clean", "dim:0.7", "--out", str(out)]
+    assert script.main(args) == 0
+    result = json.loads((out / "robustness.json").read_text())
+    assert result["rolled_out"] == [] and list(result["success"]) == ["baseline", "gaze"]
+    for archive, arm in zip(ARCHIVES, ("baseline", "gaze")):
+        report = json.loads((archive / "report.json").read_text())
+        for condition in ("clean", "dim:0.7"):
+            mine, theirs = result["success"][arm][condition], report["success"][arm][condition]
+            assert (mine["successes"], mine["n"]) == (theirs["successes"], theirs["n"]) and mine["n"] == 300
+    assert "gaze vs baseline | dim:0.7" in result["paired"]
+    assert not (out / "eval").exists()
+    with pytest.raises(
+        UsageError, match=r"tint:1 must be rolled out, but .*paper-abl-b.* keep no checkpoints"
+    ):
+        script.main([*args[:2], "--conditions", "clean", "tint:1", "--out", str(tmp_path / "other")])
+    assert not (tmp_path / "other").exists()

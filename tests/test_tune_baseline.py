@@ -75,3 +75,20 @@ def test_the_tuned_recipe_is_the_chosen_candidates_and_the_paper_presets():
     for preset in (paper, sweep):
         assert config_diff(to_dict(preset().train), to_dict(tuned()), ignore) == {}
     assert f"**Chosen recipe: {name}**" in (ROOT / "docs" / "tuning" / "baseline.md").read_text()
+
+
+def test_a_candidate_is_recorded_from_its_finished_run_or_its_archive(tune):
+    """A candidate's record reads its experiment through `read_run`: from an archive (evaluation records
+    compressed) too. Validation successes per task and training seed are the run's clean outcomes."""
+    from gazereg.experiment import read_run
+
+    run = read_run(ROOT / "docs" / "records" / "paper-abl-b")
+    result = tune.candidate_result(run, "default", "today's recipe", [])
+    report = run.report
+    val = result["validation"]
+    assert set(val) == set(run.tasks) and all(set(seeds) == {"0", "1", "2"} for seeds in val.values())
+    for task in run.tasks:
+        cell = report["success"]["baseline"]["clean"]["per_task"][task]
+        assert [sum(c[i] for c in val[task].values()) for i in (0, 1)] == [cell["successes"], cell["n"]]
+    assert result["stage_seconds"] == report["stage_times_s"] and result["date"] == report["date"]
+    assert result["command"].endswith("--out runs/tune/default")
