@@ -1,21 +1,33 @@
 """Stage 5 of scripts/lerobot_e2e.py: LeRobot checkpoints evaluated on the same unseen Meta-World setups.
 
-The rollouts run in this interpreter (the project venv: Meta-World, MuJoCo); each policy runs in the LeRobot
+The rollouts run in this interpreter (the project venv: Meta-World, MuJoCo) through gazereg's own evaluation
+(`gazereg.evaluation.rollout`: its jobs, its worker's episode loop and records); each policy runs in the LeRobot
 lane, served by `lerobot_policy_gazereg.eval_adapter` over a pipe (LeRobot 0.6.1 has a Meta-World env, but it
-needs metaworld in the lane venv). Success with Wilson intervals, the exact McNemar test on the pairs, and each
-policy's attention to the image tokens on data set frames next to the gaze prior (OUT/attention.png).
+needs metaworld in the lane venv) and stands in for a gazereg policy in the rollout worker (`LaneWorker`).
+Success with Wilson intervals (`gazereg.report.tables.success_table`), the exact McNemar test on the pairs
+(`gazereg.evaluation.stats`), and each policy's attention to the image tokens on data set frames next to the
+gaze prior (OUT/attention.png).
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import subprocess
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from gazereg.evaluation.config import EvalConfig
+from gazereg.evaluation.rollout import RolloutWorker, make_jobs, run_jobs
+from gazereg.evaluation.stats import mcnemar_exact, paired_counts
+from gazereg.report.ids import RunId
+from gazereg.report.tables import run_of, success_table
 
 ROOT = Path(__file__).resolve().parents[1]
 ADAPTER = ROOT / "lerobot_plugin" / "src" / "lerobot_policy_gazereg" / "eval_adapter.py"
@@ -71,32 +83,86 @@ class PipePolicy:
         self._log.close()
 
 
-def rollout(policy: PipePolicy, env: Any, seed: int, camera: str) -> tuple[bool, int]:
-    """One episode on setup `seed` of `env` (a gazereg Meta-World env): (success, steps)."""
-    obs, info = env.reset(seed=seed)
-    policy.reset()
-    done, steps = False, 0
-    while not done:
-        images = {f"observation.images.{camera}": obs["images"][camera]}
-        action = np.clip(policy.act(images, obs["state"], obs["instruction"]), -1.0, 1.0)
-        obs, _, term, trunc, info = env.step(action)
-        done, steps = bool(term or trunc), steps + 1
-    return bool(info["success"]), steps
+@dataclass(frozen=True)
+class LaneConfig:
+    """What gazereg's rollout worker reads of a policy's config: the cameras it sees and their image size."""
+
+    cameras: tuple[str, ...]
+    image_hw: tuple[int, int]
+    camera_hw: tuple[tuple[int, int], ...] | None = None
 
 
-def run_arm(policy: PipePolicy, seeds: list[int], a: argparse.Namespace) -> list[tuple[str, int, bool, int]]:
-    """(task, seed, success, steps) of every task on every seed."""
-    from gazereg.envs.metaworld.env import MetaWorldEnv
+class LanePolicy:
+    """A served LeRobot checkpoint (`PipePolicy`, or anything with `reset()` and `act(images, state, task)`) as
+    gazereg's rollout worker drives a policy: `config`, `reset()`, `select_action(batch, instructions)`."""
 
-    kw: dict[str, Any] = {"max_steps": a.eval_max_steps} if a.eval_max_steps else {}
-    runs = []
-    for task in a.tasks:
-        env = MetaWorldEnv(task, cameras=(a.camera,), image_size=a.image_size, **kw)
-        try:
-            runs += [(task, s, *rollout(policy, env, s, a.camera)) for s in seeds]
-        finally:
-            env.close()
-    return runs
+    def __init__(self, served: Any, camera: str, image_size: int):
+        self.served, self.config = served, LaneConfig((camera,), (image_size, image_size))
+
+    def reset(self) -> None:
+        self.served.reset()
+
+    def select_action(self, batch: dict[str, Any], instructions: Sequence[str]) -> np.ndarray:
+        """(n, A) actions in [-1, 1] for a batch of n observations: `batch["state"]` (n, S), `batch["images"]`
+        {camera: uint8 (n, H, W, 3)}; one request to the server per observation."""
+        actions = []
+        for i, task in enumerate(instructions):
+            images = {f"observation.images.{c}": frames[i] for c, frames in batch["images"].items()}
+            actions.append(np.clip(self.served.act(images, batch["state"][i], task), -1.0, 1.0))
+        return np.stack(actions)
+
+
+class LaneWorker(RolloutWorker):
+    """gazereg's rollout worker (environments, episode loop, records) acting with one `LanePolicy` for every
+    checkpoint it is given (the policy is served, not loaded here)."""
+
+    def __init__(self, policy: LanePolicy, max_steps: int):
+        super().__init__(max_steps, None, "metaworld", batch=1)
+        self.lane_policy = policy
+
+    def policy(self, checkpoint: str) -> LanePolicy:
+        return self.lane_policy
+
+
+def eval_config(a: argparse.Namespace, out: Path) -> EvalConfig:
+    """The evaluation both arms get: `a.tasks`, `a.eval_episodes` setups from `a.eval_seed`, clean, one
+    episode at a time in this process, `a.eval_max_steps` steps (0: Meta-World's limit)."""
+    from gazereg.envs.metaworld.env import MAX_PATH_LENGTH
+
+    return EvalConfig(
+        tasks=tuple(a.tasks),
+        episodes=a.eval_episodes,
+        seed_start=a.eval_seed,
+        conditions=("clean",),
+        max_steps=a.eval_max_steps or MAX_PATH_LENGTH,
+        workers=1,
+        batch=1,
+        videos=0,
+        out=out,
+        env="metaworld",
+    )
+
+
+def rollouts(policy: LanePolicy, run: RunId, checkpoint: Path, cfg: EvalConfig) -> list[dict[str, Any]]:
+    """gazereg's evaluation records (`gazereg.evaluation.rollout`: arm, task, condition, seed, success, length
+    ...) of `policy` on every task and setup of `cfg`, named `run`."""
+    jobs = make_jobs(cfg, {str(run): checkpoint})
+    worker = functools.partial(LaneWorker, policy, cfg.max_steps)
+    return run_jobs(jobs, cfg, progress=False, make_worker=worker)
+
+
+def arm_results(records: list[dict[str, Any]], arm: str) -> dict[str, Any]:
+    """One arm's entry of results.json: per episode (task-major, then setup) its success, steps and task, and
+    the pooled rate with its Wilson 95% interval."""
+    mine = [r for r in records if run_of(r).arm == arm]
+    cell = success_table(mine)[arm]["clean"]
+    return {
+        "success": [bool(r["success"]) for r in mine],
+        "steps": [int(r["length"]) for r in mine],
+        "task": [r["task"] for r in mine],
+        "rate": cell["rate"],
+        "wilson95": cell["ci95"],
+    }
 
 
 def evaluate(
@@ -104,30 +170,20 @@ def evaluate(
 ) -> tuple[dict[str, Any], dict[str, dict[str, np.ndarray]]]:
     """Both checkpoints on the same setups: (success per episode, Wilson intervals and exact McNemar on the
     pairs; each arm's attention maps on frames of the data set `data`, see eval_adapter.attention_maps)."""
-    from gazereg.evaluation.stats import mcnemar_exact, paired_counts, wilson
-
-    seeds = [a.eval_seed + i for i in range(a.eval_episodes)]
-    out: dict[str, Any] = {"setup_seeds": seeds, "arms": {}}
+    cfg = eval_config(a, logs / "eval")
+    out: dict[str, Any] = {"setup_seeds": list(cfg.seeds("clean")), "arms": {}}
     maps = {}
     ask = {"op": "attention", "root": str(data), "gaze_key": f"gaze.{a.camera}.heatmap"}
     for arm, ckpt in arms.items():
         t0 = time.time()
-        policy = PipePolicy(a.lane_python, ckpt, logs / f"eval_{arm}.log")
+        served = PipePolicy(a.lane_python, ckpt, logs / f"eval_{arm}.log")
         try:
-            maps[arm] = policy.ask({**ask, "camera": f"observation.images.{a.camera}"})["maps"]
-            runs = run_arm(policy, seeds, a)
+            maps[arm] = served.ask({**ask, "camera": f"observation.images.{a.camera}"})["maps"]
+            records = rollouts(LanePolicy(served, a.camera, a.image_size), RunId(arm, a.seed), ckpt, cfg)
         finally:
-            policy.close()
-        ok = [r[2] for r in runs]
-        lo, hi = wilson(sum(ok), len(ok))
-        out["arms"][arm] = {
-            "success": ok,
-            "steps": [r[3] for r in runs],
-            "task": [r[0] for r in runs],
-            "rate": sum(ok) / len(ok),
-            "wilson95": [lo, hi],
-            "seconds": round(time.time() - t0, 1),
-        }
+            served.close()
+        out["arms"][arm] = {**arm_results(records, arm), "seconds": round(time.time() - t0, 1)}
+        ok = out["arms"][arm]["success"]
         print(f"  eval {arm}: {sum(ok)}/{len(ok)} ({time.time() - t0:.1f} s)", flush=True)
     a_ok, b_ok = (out["arms"][k]["success"] for k in ("smolvla", "smolvla_gaze"))
     out["paired"] = {
@@ -135,6 +191,20 @@ def evaluate(
         "mcnemar": mcnemar_exact(a_ok, b_ok),
     }
     return out, maps
+
+
+def episode_records(r: dict[str, Any]) -> list[dict[str, Any]]:
+    """The evaluation records (gazereg's form, clean) behind results.json's per-arm lists: each arm's episodes
+    run task by task over the same setup seeds."""
+    seeds = r["setup_seeds"]
+    records = []
+    for arm, v in r["arms"].items():
+        for i, (task, success) in enumerate(zip(v["task"], v["success"])):
+            records.append(
+                {"arm": f"{arm}@s0", "task": task, "condition": "clean", "seed": seeds[i % len(seeds)],
+                 "success": bool(success)}
+            )  # fmt: skip
+    return records
 
 
 def attention_figure(maps: dict[str, dict[str, np.ndarray]], out: Path) -> dict[str, float | None]:
@@ -165,8 +235,7 @@ def attention_figure(maps: dict[str, dict[str, np.ndarray]], out: Path) -> dict[
 def report_markdown(r: dict[str, Any], figure: str = "attention.png") -> str:
     """The run's results as markdown: the command, the data and budget, GLC's held-out quality, success per
     task and pooled with Wilson intervals, the paired test, the attention KL and the stage times."""
-    from gazereg.evaluation.stats import wilson
-
+    table = success_table(episode_records(r))
     lines = [
         f"Command: `{r['command']}` ({r['machine']}, wall time {r['wall_s'] / 60:.1f} min).",
         "",
@@ -186,10 +255,10 @@ def report_markdown(r: dict[str, Any], figure: str = "attention.png") -> str:
     for task in [*r["tasks"], "pooled"]:
         cells = []
         for arm in arms:
-            v = r["arms"][arm]
-            ok = [s for s, t in zip(v["success"], v["task"]) if task in ("pooled", t)]
-            lo, hi = wilson(sum(ok), len(ok))
-            cells.append(f"{sum(ok)}/{len(ok)} [{lo:.2f}, {hi:.2f}]")
+            clean = table[arm]["clean"]
+            c = clean if task == "pooled" else clean["per_task"][task]
+            lo, hi = c["ci95"]
+            cells.append(f"{c['successes']}/{c['n']} [{lo:.2f}, {hi:.2f}]")
         lines.append(f"| {task} | " + " | ".join(cells) + " |")
     m = r["paired"]["mcnemar"]
     kl = ", ".join(f"{k} {v:.3f}" for k, v in r["attention_kl_gaze_to_attention"].items() if v is not None)
