@@ -17,14 +17,14 @@ from gazereg import cli
 from gazereg.data.store import EpisodeStore
 from gazereg.envs.collect import collect
 from gazereg.envs.collect_config import CollectConfig
-from gazereg.experiment.config import smoke as smoke_experiment
+from gazereg.experiment.config import ExperimentConfig
 from gazereg.experiment.pretrain import STAGES, store_fingerprint
-from gazereg.experiment.pretrain_config import PRESETS, finetune_flags
+from gazereg.experiment.pretrain_config import PRESETS, finetune_flags, held_out_instructions
 from gazereg.experiment.runner import Experiment
 from gazereg.policies import load_policy
 from gazereg.report.ids import RunId
 from gazereg.runtime.errors import UsageError
-from gazereg.training.config import TrainConfig
+from gazereg.training.config import TrainConfig, upgrade_saved
 from gazereg.training.init_from import INIT_RECORD, file_sha256
 from gazereg.training.loop import train
 from gazereg.training.setup import build
@@ -72,9 +72,11 @@ def test_pretrain_runs_every_stage_and_writes_its_manifest(pretrained, capsys):
     assert manifest["command"][:2] == ["gazereg", "pretrain"] and manifest["preset"] == "smoke"
     assert set(manifest["stage_seconds"]) == {"demos", "train", "eval"}
     assert manifest["policy"]["finetune_flags"] == finetune_flags(PRESETS["smoke"]().train.policy)
-    assert "--train.policy.tokenizer" in manifest["policy"]["finetune_flags"]
+    assert "--train.policy.max-text-len" in manifest["policy"]["finetune_flags"]
     assert manifest["evaluation"]["pooled"]["n"] == 2  # 1 episode x 2 tasks
-    assert load_policy(policy).tokenizer.kind == "bytes"
+    tokenizer = load_policy(policy).tokenizer
+    assert tokenizer.kind == "words"  # its vocabulary holds every held-out instruction's words
+    assert [tokenizer.unknown_words(t) for t in held_out_instructions()] == [[]] * 5
     seeds = {
         EpisodeStore(pretrained / "demos").meta(i)["seed"]
         for i in EpisodeStore(pretrained / "demos").indices()
@@ -96,8 +98,12 @@ def test_pretrain_refuses_another_configuration_in_its_folder(pretrained, capsys
     "args, message",
     [
         (["--tasks", "reach-v3", "door-lock-v3"], "door-lock-v3 is one of ML45's held-out tasks"),
-        (["--train.policy.tokenizer", "words"], "--train.policy.tokenizer words: pretraining uses the bytes"),
-        (["--train.policy.max-text-len", "32"], "--train.policy.max-text-len 32 cuts"),
+        (
+            ["--train.data.extra-instructions", "Reach."],
+            "the words vocabulary lacks pick, up, cube",
+        ),
+        (["--train.policy.max-text-len", "8"], "--train.policy.max-text-len 8 cuts"),
+        (["--train.policy.tokenizer", "bytes"], "--train.policy.max-text-len 16 cuts"),
         (["--demos-per-task", "990", "--demo-max-failures", "20"], "leave the pretrain_demos range"),
         (["--tasks", "reach-v3", "nosuch-v3"], "unknown Meta-World task 'nosuch-v3'"),
     ],
@@ -118,6 +124,7 @@ def test_fine_tuning_starts_from_the_pretrained_weights_tokenizer_and_normalisat
     assert list(mine) == list(theirs)
     assert all(torch.equal(mine[k], theirs[k]) for k in mine)  # normaliser buffers included
     assert built.policy.tokenizer.to_dict() == saved.tokenizer.to_dict()
+    assert built.policy.tokenizer.unknown_words("Unlock the door by turning the lock up.") == []
     scratch = build(replace(finetune_config(pretrained, held_out_store, tmp_path / "s"), init_from=None))
     assert not torch.equal(scratch.policy.normalizer.action_mean, saved.normalizer.action_mean)
     assert built.init["model_sha256"] == file_sha256(pretrained / "policy" / "model.safetensors")
@@ -144,8 +151,8 @@ def test_fine_tuning_refuses_what_does_not_fit_in_one_line(pretrained, held_out_
     ) as e:
         build(narrower)
     assert "\n" not in str(e.value)
-    with pytest.raises(UsageError, match=r"--policy.tokenizer 'words' \(saved: 'bytes'\)"):
-        build(replace(cfg, policy=replace(cfg.policy, tokenizer="words")))
+    with pytest.raises(UsageError, match=r"--policy.tokenizer 'bytes' \(saved: 'words'\)"):
+        build(replace(cfg, policy=replace(cfg.policy, tokenizer="bytes")))
     with pytest.raises(
         UsageError, match="train is not a saved policy: model.safetensors, tokenizer.json missing"
     ):
@@ -160,22 +167,20 @@ def test_fine_tuning_refuses_what_does_not_fit_in_one_line(pretrained, held_out_
 
 
 def test_train_command_refuses_a_missing_init_folder_with_exit_2(tmp_path, capsys, held_out_store):
-    args = [
-        "train",
-        "--preset",
-        "smoke",
-        "--data.store",
-        str(held_out_store),
-        "--run-dir",
-        str(tmp_path / "r"),
-    ]
+    args = ["train", "--data.store", str(held_out_store), "--run-dir", str(tmp_path / "r")]
     assert cli.main([*args, "--init-from", str(tmp_path / "none")]) == 2
     err = capsys.readouterr().err
     assert f"--init-from {tmp_path / 'none'}: no such folder" in err and len(err.strip().splitlines()) == 1
 
 
 def test_experiment_arms_start_from_the_init_folder(tmp_path):
-    base = smoke_experiment()
+    base = ExperimentConfig()
     cfg = replace(base, out=tmp_path, train=replace(base.train, init_from=tmp_path / "policy"))
     run = Experiment(cfg).train_config(RunId("gaze", 0), tmp_path / "train" / "gaze_s0")
     assert run.init_from == tmp_path / "policy"
+
+
+def test_a_run_saved_before_extra_instructions_compares_as_one_without_them():
+    old = {"data": {"store": "x"}, "gaze": {"prior": None}}
+    assert upgrade_saved(old)["data"]["extra_instructions"] == []
+    assert upgrade_saved(old)["gaze"]["target"] == "attention"

@@ -6,13 +6,18 @@
 
 The options are checked when the config is built (`Validated`): counts in range, the demonstrations' and the
 evaluation's setup seeds inside the ranges reserved for pretraining (gazereg.envs.metaworld.setups), no gaze
-prior, and the "bytes" tokenizer. Why bytes: the fine-tuning runs must encode ML45's held-out instructions
-with the pretrained tokenizer (gazereg.training.init_from reuses it); a "words" vocabulary built from the 45
-training instructions maps the held-out tasks' own words (lock, unlock, bin, lid, hand, ...) to <unk>, and
-every byte of the held-out instructions is one the pretraining trained. The cost is a longer text: 64 byte
-tokens (the longest ML45 instruction has 58 bytes) instead of at most 13 words. `preflight` refuses, before
-any work, a task outside Meta-World, one of ML45's held-out tasks, and a `--train.policy.max-text-len` too
-short for an instruction of the pretraining tasks or of the held-out ones (it would be cut).
+prior. `preflight` refuses, before any work, a task outside Meta-World, one of ML45's held-out tasks, and a
+tokenizer that could not encode an instruction of the pretraining tasks or of the held-out ones.
+
+The tokenizer. The fine-tuning runs encode ML45's held-out instructions with the pretrained tokenizer
+(gazereg.training.init_from reuses it), so its vocabulary must hold their words. The presets use the "words"
+tokenizer with a vocabulary built from the pretraining tasks' instructions and the held-out tasks' ones
+(`--train.data.extra-instructions`; a vocabulary of the 45 training instructions alone maps the held-out
+tasks' own words, lock, unlock, bin, lid, hand, ..., to <unk>), at most 13 words, so 16 text tokens. The
+held-out tasks' own words keep their initial embeddings until fine-tuning trains them. The "bytes" tokenizer
+encodes any text but needs 64 text tokens (the longest ML45 instruction has 58 bytes): the sequence grows
+from 89 to 137 tokens, which made a training step of `ml45_policy` about 1.5 times slower on a 2-core CPU
+(batch 32, float32). `--train.policy.tokenizer bytes --train.policy.max-text-len 64` chooses it.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from gazereg.envs.metaworld.setups import PRETRAIN_DEMOS, PRETRAIN_EVAL
 from gazereg.evaluation.config import check_tasks
 from gazereg.policies import PolicyConfig
 from gazereg.policies.vla.configuration_vla import VLAConfig
+from gazereg.policies.vla.processor_vla import Tokenizer
 from gazereg.runtime.config import Validated, option, require_entries, require_number
 from gazereg.runtime.errors import UsageError
 from gazereg.training.config import EXECUTION_KEYS as TRAIN_EXECUTION_KEYS
@@ -34,8 +40,8 @@ from gazereg.training.config import OptimConfig, TrainConfig
 from gazereg.training.config import smoke as smoke_train
 from gazereg.training.config import tuned as tuned_train
 
-TEXT_TOKENS = 64
-"""byte tokens of the presets' instruction: the longest ML45 instruction has 58 bytes"""
+TEXT_TOKENS = 16
+"""word tokens of the presets' instruction: the longest ML45 instruction has 13 words"""
 
 
 @dataclass(frozen=True)
@@ -56,7 +62,8 @@ class PretrainConfig(Validated):
     demo_max_steps: int = 300
     """a demonstration that has not succeeded after this many steps is a failure"""
     collect_workers: int = 2
-    train: TrainConfig = field(default_factory=lambda: ml45_train())
+    train: TrainConfig = field(default_factory=TrainConfig)
+    """the training run (its folder, store and gaze settings are the train stage's own)"""
     eval_episodes: int = 10
     """evaluation episodes per task, on setup seeds PRETRAIN_EVAL.start .."""
     eval_max_steps: int = 200
@@ -85,12 +92,6 @@ class PretrainConfig(Validated):
             raise UsageError(
                 f"{option(prefix + 'train.gaze.prior')} {self.train.gaze.prior}: pretraining has no gaze term"
             )
-        tokenizer = getattr(self.train.policy, "tokenizer", "bytes")
-        if tokenizer != "bytes":
-            raise UsageError(
-                f"{option(prefix + 'train.policy.tokenizer')} {tokenizer}: pretraining uses the bytes tokenizer, "
-                "so that the fine-tuning runs can encode the held-out tasks' instructions"
-            )
 
     @property
     def demo_seeds(self) -> range:
@@ -116,21 +117,35 @@ EXECUTION_KEYS = (
 
 def preflight(cfg: PretrainConfig) -> None:
     """Refuse (UsageError, one line) before any work: a task Meta-World lacks, one of ML45's held-out tasks,
-    and a text length that would cut an instruction of the pretraining or the held-out tasks."""
+    and a tokenizer (the reference VLA's) that would cut an instruction of the pretraining or the held-out tasks
+    or, with words, lacks a word of a held-out instruction (module docstring)."""
     check_tasks("metaworld", cfg.tasks, "--tasks")
     held_out = ml45_split().test
     seen = [t for t in cfg.tasks if t in held_out]
     if seen:
         raise UsageError(f"--tasks: {seen[0]} is one of ML45's held-out tasks ({', '.join(held_out)})")
-    length = getattr(cfg.train.policy, "max_text_len", None)
-    if length is None:
+    kind, length = getattr(cfg.train.policy, "tokenizer", None), getattr(cfg.train.policy, "max_text_len", 0)
+    if kind is None:
         return
+    known = Tokenizer.build([instruction_for(t) for t in cfg.tasks] + list(cfg.train.data.extra_instructions))
     for task in (*cfg.tasks, *held_out):
-        n = len(instruction_for(task).encode("utf-8"))
+        text = instruction_for(task)
+        n = len(text.encode("utf-8")) if kind == "bytes" else len(Tokenizer.split(text))
         if n > length:
             raise UsageError(
-                f"--train.policy.max-text-len {length} cuts {task}'s instruction ({n} bytes): use {TEXT_TOKENS}"
+                f"--train.policy.max-text-len {length} cuts {task}'s instruction ({n} {kind}: {text!r})"
             )
+        unknown = list(dict.fromkeys(known.unknown_words(text))) if kind == "words" else []
+        if unknown:
+            raise UsageError(
+                f"--train.data.extra-instructions: the words vocabulary lacks {', '.join(unknown)} of {task}'s "
+                f"instruction {text!r}: add the held-out tasks' instructions (or use --train.policy.tokenizer bytes)"
+            )
+
+
+def held_out_instructions() -> tuple[str, ...]:
+    """The instructions of ML45's held-out tasks, in the split's order."""
+    return tuple(instruction_for(t) for t in ml45_split().test)
 
 
 def finetune_flags(policy: PolicyConfig, prefix: str = "--train.policy.") -> list[str]:
@@ -150,15 +165,18 @@ def finetune_flags(policy: PolicyConfig, prefix: str = "--train.policy.") -> lis
 # ----- presets ------------------------------------------------------------------------------------------------
 def ml45_policy() -> VLAConfig:
     """The generalist's architecture, a first guess for 2 cores (not measured yet): width 192, 6 layers, 4
-    heads, 96 px images in 12 px patches (8 x 8 tokens), chunks of 8, 64 byte tokens of instruction."""
-    return VLAConfig(dim=192, depth=6, heads=4, chunk=8, tokenizer="bytes", max_text_len=TEXT_TOKENS)
+    heads, 96 px images in 12 px patches (8 x 8 tokens), chunks of 8, 16 word tokens of instruction."""
+    return VLAConfig(dim=192, depth=6, heads=4, chunk=8, tokenizer="words", max_text_len=TEXT_TOKENS)
 
 
 def ml45_train() -> TrainConfig:
     """`ml45_policy` trained 30,000 steps of batch 32 with the tuned recipe's learning rate 5e-4, checkpoints
-    every 2,000 steps (the newest 3 kept), on the GPU where there is one (a first guess, not measured)."""
+    every 2,000 steps (the newest 3 kept), on the GPU where there is one (a first guess, not measured); the
+    tokenizer's vocabulary holds the held-out tasks' words too. Needs Meta-World (the held-out instructions)."""
+    t = tuned_train()
     return replace(
-        tuned_train(),
+        t,
+        data=replace(t.data, extra_instructions=held_out_instructions()),
         run_dir=Path("runs/pretrain/train"),
         steps=30_000,
         batch_size=32,
@@ -191,7 +209,8 @@ def smoke() -> PretrainConfig:
         eval_every=3,
         save_every=3,
         eval_batch_size=8,
-        policy=replace(t.policy, tokenizer="bytes", max_text_len=TEXT_TOKENS),
+        policy=replace(t.policy, tokenizer="words", max_text_len=TEXT_TOKENS),
+        data=replace(t.data, extra_instructions=held_out_instructions()),
         optim=OptimConfig(lr=1e-3, warmup_steps=2),
     )
     return PretrainConfig(

@@ -75,6 +75,10 @@ class DataConfig(Validated):
     """copy frames into RAM (fast); False reads the store's memory maps per sample"""
     num_workers: int = 0
     """DataLoader worker processes (0: batches are built in the training process)"""
+    extra_instructions: tuple[str, ...] = ()
+    """instructions whose words a "words" tokenizer's vocabulary holds besides the training data's (e.g. held-out
+    tasks', so that a policy fine-tuned on them from this one has their words); the bytes tokenizer has every
+    text's"""
 
     def validate(self, prefix: str) -> None:
         if self.max_episodes is not None:
@@ -229,8 +233,11 @@ def check_layers(layers: tuple[int, ...], policy: PolicyConfig, prefix: str = ""
 def upgrade_saved(saved: dict[str, Any]) -> dict[str, Any]:
     """A saved TrainConfig dict (`to_dict` as JSON) with the options added since filled in with the value
     that reproduces how it ran: gaze.target "attention" (runs saved before the option existed regularized
-    attention). For comparisons with a new config (resume, an experiment folder)."""
-    gaze = saved.get("gaze")
+    attention), data.extra_instructions empty. For comparisons with a new config (resume, an experiment
+    folder)."""
+    gaze, data = saved.get("gaze"), saved.get("data")
+    if isinstance(data, dict) and "extra_instructions" not in data:
+        saved = {**saved, "data": {**data, "extra_instructions": []}}
     if isinstance(gaze, dict) and "target" not in gaze:
         return {**saved, "gaze": {**gaze, "target": "attention"}}
     return saved

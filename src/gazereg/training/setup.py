@@ -82,6 +82,10 @@ def build(cfg: TrainConfig) -> Built:
     train_eps, val_eps = split_episodes(store, episodes, cfg.data.val_fraction, cfg.seed)
     check_batch_size(cfg, store, train_eps, len(val_eps))
     data = describe_store(store, episodes, cfg.policy.cameras)
+    if cfg.data.extra_instructions:  # words the tokenizer must know besides the data's (DataConfig)
+        data = dataclasses.replace(
+            data, instructions=tuple(sorted({*data.instructions, *cfg.data.extra_instructions}))
+        )
     if saved is None:
         policy = make_policy(cfg.policy, data)
     else:  # fine-tuning: the saved weights, normalisation and tokenizer (gazereg.training.init_from)
