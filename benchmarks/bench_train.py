@@ -45,7 +45,7 @@ from gazereg.training.schedule import param_groups
 from gazereg.training.setup import make_optimiser, resolve_precision
 
 TERMS = ("baseline", "gaze", "naive_all_layers")
-TRAIN_CFG = resolve_precision(PRESETS["quick"]())  # the README's CPU job, mixed_precision "auto" resolved
+TRAIN_CFG = resolve_precision(PRESETS["cpu"]())  # the tiny VLA on a CPU, mixed_precision "auto" resolved
 BF16 = TRAIN_CFG.mixed_precision == "bf16"
 PATHS = {
     "eager_fp32": {"attention": "sdpa", "fused_adamw": False, "autocast_bf16": False},

@@ -35,7 +35,7 @@ BAD_INPUTS = [
         [
             "train",
             "--preset",
-            "smoke",
+            "ci",
             "--data.store",
             "{store}",
             "--run-dir",
@@ -108,7 +108,7 @@ BAD_INPUTS = [
     (["experiment", "--aggregation.past", "-1"], 2, "--aggregation.past must be an integer >= 0, got -1"),
     # layers the policy does not have: refused when the config is built
     (
-        ["train", "--preset", "smoke", "--gaze.layers", "7"],
+        ["train", "--preset", "ci", "--gaze.layers", "7"],
         2,
         "--gaze.layers 7 is out of range for a 2-layer policy (--policy.depth 2): layer ids run -2..1",
     ),

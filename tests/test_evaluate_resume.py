@@ -89,7 +89,7 @@ def test_killed_evaluation_resumes_from_log(tmp_path, fake_rollouts):
 def test_libero_preset_avoids_demo_states_and_video_names_are_flat(tmp_path):
     from dataclasses import replace
 
-    cfg = replace(presets()["libero"](), out=tmp_path, videos=1)
+    cfg = replace(presets()["libero-spatial-25"](), out=tmp_path, videos=1)
     assert cfg.env == "libero" and len(cfg.tasks) == 10
     assert all((cfg.seed_start + i) % 50 >= 25 for i in range(cfg.episodes))  # initial states 25..49
     jobs = ev.make_jobs(cfg, {"gaze": tmp_path / "ckpt"})

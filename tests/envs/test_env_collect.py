@@ -165,7 +165,7 @@ def test_command_line_with_comma_separated_tasks(tmp_path, gl_backend, capsys):
     rc = main(
         [
             "--preset",
-            "smoke",
+            "demos-2x2",
             "--tasks",
             "reach-v3,button-press-topdown-v3",
             "--episodes",

@@ -209,7 +209,7 @@ def test_gaze_params_are_recorded_as_text_that_reads_back():
         (lambda: GLCStoreTrainConfig(stride=0), "--stride must be"),
         (lambda: GLCStoreTrainConfig(clip_hop=0), "--clip-hop must be"),
         (lambda: GLCStoreTrainConfig(holdout_every=1), "--holdout-every must be an integer >= 2, got 1"),
-        (lambda: GLCStoreTrainConfig(config="huge"), "--config must be one of full, small, got 'huge'"),
+        (lambda: GLCStoreTrainConfig(config="huge"), "--config must be one of official, small, got 'huge'"),
         (lambda: GLCEvalCommand(hop=0), "--hop must be"),
         (lambda: GLCEvalCommand(batch_size=0), "--batch-size must be"),
         (lambda: GLCEvalCommand(stride=0), "--stride must be"),

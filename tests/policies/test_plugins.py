@@ -49,7 +49,7 @@ def test_an_unregistered_name_is_looked_up_in_the_entry_points(monkeypatch, forg
     installed(monkeypatch, ("toy", "toy_policy:ToyPolicy"))
     assert "toy" in available_policies()  # listed before it is loaded
     assert policy_class("toy") is ToyPolicy
-    cfg = parse(PRESETS, ["--preset", "smoke", "--policy.type", "toy", "--policy.dim", "8"], prog="t")
+    cfg = parse(PRESETS, ["--preset", "ci", "--policy.type", "toy", "--policy.dim", "8"], prog="t")
     assert cfg.policy == ToyConfig(dim=8)
     unregister_policy("toy")
     installed(monkeypatch, ("toy", "toy_policy:ToyConfig"))  # the config class names its policy too

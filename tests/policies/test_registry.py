@@ -50,10 +50,10 @@ def test_the_registry_knows_the_builtins_and_checks_what_it_registers(toy_policy
 
 
 def test_policy_type_on_the_command_line_picks_the_registered_config(toy_policy):
-    cfg = parse(PRESETS, ["--preset", "smoke", "--policy.type", "toy", "--policy.dim", "8"], prog="t")
+    cfg = parse(PRESETS, ["--preset", "ci", "--policy.type", "toy", "--policy.dim", "8"], prog="t")
     assert isinstance(cfg, TrainConfig) and cfg.policy == ToyConfig(dim=8) and cfg.steps == smoke().steps
     assert to_dict(cfg)["policy"] == {"type": "toy", **ToyConfig(dim=8).to_dict()}
-    same = parse(PRESETS, ["--preset", "smoke", "--policy.type=vla", "--policy.depth", "3"], prog="t")
+    same = parse(PRESETS, ["--preset", "ci", "--policy.type=vla", "--policy.depth", "3"], prog="t")
     assert same.policy == dataclasses.replace(smoke().policy, depth=3)  # the preset's VLA config is kept
     assert to_dict(same)["policy"]["type"] == "vla" and "policy_type" not in to_dict(same)
     with pytest.raises(UsageError, match="unknown policy type 'nope'"):
@@ -70,7 +70,7 @@ def test_make_policy_builds_the_configs_registered_type(toy_policy, reach_store)
 
 def _train_args(store, run, *extra):
     return [
-        "--preset", "smoke", "--policy.type", "toy", "--data.store", str(store.root), "--run-dir", str(run),
+        "--preset", "ci", "--policy.type", "toy", "--data.store", str(store.root), "--run-dir", str(run),
         "--steps", "6", "--save-every", "6", "--eval-every", "3", "--log-every", "3", *extra,
     ]  # fmt: skip
 

@@ -10,7 +10,7 @@ from gazereg.data.dataset import StoreInfo
 from gazereg.losses import gaze_loss
 from gazereg.policies import available_policies, load_policy, make_policy, policy_config_class
 from gazereg.policies.vla import VLAConfig, VLAPolicy
-from gazereg.policies.vla.configuration_vla import paper, tiny
+from gazereg.policies.vla.configuration_vla import large, tiny
 from gazereg.policies.vla.processor_vla import Tokenizer, random_shift, to_input_images
 
 INSTR = ["reach the bright square", "press the button"]
@@ -67,7 +67,7 @@ def test_registry_and_presets():
     assert 0.5e6 <= p.num_parameters() <= 1.0e6
     assert t.grid_hw == (8, 8) and p.n_tokens == 64 + 12 + 1 + 4
     pc = dataclasses.replace(
-        paper(), cameras=("corner2",), camera_hw=((224, 224),), state_dim=8, action_dim=7, vocab_size=50
+        large(), cameras=("corner2",), camera_hw=((224, 224),), state_dim=8, action_dim=7, vocab_size=50
     )
     big = VLAPolicy(pc, Tokenizer("words", [f"w{i}" for i in range(48)], pc.max_text_len))
     assert pc.grid_hw == (16, 16) and 10e6 < big.num_parameters() < 100e6  # GPU-sized

@@ -43,7 +43,7 @@ def gaze(target="attention", weight=0.5, **kw):
 # ----- the option -------------------------------------------------------------------------------------------
 def test_a_bad_target_exits_2_with_one_line_naming_the_option(tiny_store, tmp_path, capsys):
     run = tmp_path / "run"
-    argv = ["train", "--preset", "smoke", "--data.store", str(tiny_store.root), "--run-dir", str(run)]
+    argv = ["train", "--preset", "ci", "--data.store", str(tiny_store.root), "--run-dir", str(run)]
     assert cli_main([*argv, "--gaze.target", "heads"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["gazereg train: error: --gaze.target must be one of attention, features, got 'heads'"]
@@ -54,7 +54,7 @@ def test_a_bad_target_exits_2_with_one_line_naming_the_option(tiny_store, tmp_pa
 
 def test_features_from_the_command_line_record_the_mode_and_log_both_kls(tiny_store, tmp_path, capsys):
     run = tmp_path / "run"
-    args = ["--preset", "smoke", "--data.store", str(tiny_store.root), "--run-dir", str(run)]
+    args = ["--preset", "ci", "--data.store", str(tiny_store.root), "--run-dir", str(run)]
     assert loop.main([*args, "--gaze.prior", "square", "--gaze.target", "features"]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["step"] == 20
     assert json.loads((run / "config.json").read_text())["gaze"]["target"] == "features"

@@ -67,7 +67,7 @@ def weights(run_dir, step):
 )
 def test_bad_options_exit_2_with_one_line_naming_the_option(tiny_store, tmp_path, capsys, args, message):
     run = tmp_path / "run"
-    argv = ["train", "--preset", "smoke", "--data.store", str(tiny_store.root), "--run-dir", str(run), *args]
+    argv = ["train", "--preset", "ci", "--data.store", str(tiny_store.root), "--run-dir", str(run), *args]
     assert cli_main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"gazereg train: error: {message}"]
@@ -260,7 +260,7 @@ main(sys.argv[1:])
 @pytest.mark.slow
 def test_a_killed_train_leaves_a_temporary_that_the_next_start_removes(tiny_store, tmp_path):
     run = tmp_path / "run"
-    args = ["--preset", "smoke", "--data.store", str(tiny_store.root), "--run-dir", str(run), "--steps", "4"]
+    args = ["--preset", "ci", "--data.store", str(tiny_store.root), "--run-dir", str(run), "--steps", "4"]
     args += ["--save-every", "2", "--eval-every", "2", "--data.val-fraction", "0.25"]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     r = subprocess.run(

@@ -30,7 +30,7 @@ def params(run_dir, step):
 @pytest.mark.parametrize("gaze", [False, True])
 def test_smoke_training_from_the_command_line(tiny_store, tmp_path, capsys, gaze):
     run = tmp_path / "run"
-    args = ["--preset", "smoke", "--data.store", str(tiny_store.root), "--run-dir", str(run)]
+    args = ["--preset", "ci", "--data.store", str(tiny_store.root), "--run-dir", str(run)]
     if gaze:
         args += ["--gaze.prior", "square", "--gaze.weight", "0.5"]
     assert main(args) == 0
@@ -140,7 +140,7 @@ def test_flow_head_trains(tiny_store, tmp_path):
 
 def test_two_process_cpu_ddp(tiny_store, launch_two):
     def argv(folder):
-        args = ["-m", "gazereg.training.loop", "--preset", "smoke", "--data.store", str(tiny_store.root)]
+        args = ["-m", "gazereg.training.loop", "--preset", "ci", "--data.store", str(tiny_store.root)]
         args += ["--run-dir", str(folder / "ddp"), "--gaze.prior", "square", "--steps", "6"]
         return args + ["--save-every", "6", "--eval-every", "6", "--log-every", "3"]
 

@@ -38,7 +38,7 @@ def two_cameras(tmp_path_factory) -> EpisodeStore:
 
 
 def train_argv(store, run, *more):
-    return ["train", "--preset", "smoke", "--data.store", str(store.root), "--run-dir", str(run), *more]
+    return ["train", "--preset", "ci", "--data.store", str(store.root), "--run-dir", str(run), *more]
 
 
 def refused(capsys, argv, run):

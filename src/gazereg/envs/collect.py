@@ -1,6 +1,6 @@
 """`gazereg collect`: roll out scripted experts (Meta-World's, or gazereg's LIBERO-Spatial expert) into a store.
 
-    gazereg collect --preset smoke
+    gazereg collect --preset demos-2x2
     gazereg collect --tasks reach-v3,pick-place-v3 --episodes 5 --out runs/demos
     gazereg collect --tasks reach-v3 pick-place-v3 --episodes 5 --cameras corner2 topview --image-size 128
     bash scripts/libero_env.sh gazereg collect --env libero --tasks libero_spatial/0 --episodes 5 --out runs/lib

@@ -1,4 +1,5 @@
-"""What `gazereg collect` runs: its settings, presets, their checks, and what fixes an episode's index.
+"""What `gazereg collect` runs: its settings, presets (the collection budgets), their checks, and what fixes an
+episode's index.
 
 CollectConfig(episodes=0)                            # UsageError: --episodes must be an integer >= 1, got 0
 cfg = resolve(CollectConfig(tasks=("reach-v3",)))   # the simulator's defaults filled in, tasks canonical
@@ -94,17 +95,26 @@ class CollectConfig(Validated):
                 raise CollectError(f"{flag} {self.perturbation!r}: {reason}") from None
 
 
-PRESETS = {
-    "quick": lambda: CollectConfig(),
-    "smoke": lambda: CollectConfig(
+def demos_3x30() -> CollectConfig:
+    """3 Meta-World tasks x 30 successful demonstrations at 96 px (CollectConfig's defaults)."""
+    return CollectConfig()
+
+
+def demos_2x2() -> CollectConfig:
+    """CI: 2 Meta-World tasks x 2 demonstrations at 64 px, at most 150 steps each."""
+    return CollectConfig(
         out=Path("runs/smoke/demos"),
         tasks=("reach-v3", "pick-place-v3"),
         episodes=2,
         max_failures=4,
         image_size=64,
         max_steps=150,
-    ),
-    "paper": lambda: CollectConfig(
+    )
+
+
+def demos_10x50() -> CollectConfig:
+    """10 Meta-World tasks x 50 demonstrations from 2 cameras at 128 px, at most 300 steps each."""
+    return CollectConfig(
         out=Path("runs/paper/demos"),
         tasks=(
             "reach-v3",
@@ -123,8 +133,11 @@ PRESETS = {
         cameras=("corner2", "corner3"),
         image_size=128,
         max_steps=300,
-    ),
-}
+    )
+
+
+PRESETS = {"demos-3x30": demos_3x30, "demos-2x2": demos_2x2, "demos-10x50": demos_10x50}
+"""the collection budgets, `gazereg collect --preset NAME` (the first is the default; `gazereg presets`)"""
 
 
 def fingerprint(cfg: CollectConfig) -> str:

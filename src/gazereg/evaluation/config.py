@@ -1,6 +1,7 @@
-"""What `gazereg eval` runs: `EvalConfig`, its presets, the robustness sweep and the checkpoints to compare.
+"""What `gazereg eval` runs: `EvalConfig`, its presets (the evaluation budgets), the robustness sweep and the
+checkpoints to compare.
 
-cfg = presets()["quick"]()                       # 10 episodes per task: clean, dim:0.7, gaussian_noise:0.5
+cfg = presets()["clean-dim-noise-10"]()          # 10 episodes per task: clean, dim:0.7, gaussian_noise:0.5
 arms = parse_checkpoints(("baseline=runs/a/final", "runs/b/final"))   # {"baseline": ..., "final": ...}
 EvalConfig(episodes=0)                           # UsageError: --episodes must be an integer >= 1, got 0
 EvalConfig(episodes=25, robustness_episodes=10).seeds("dim:0.7")   # range(1000, 1010): the first clean setups
@@ -106,28 +107,52 @@ class EvalConfig(Validated):
         return range(self.seed_start, self.seed_start + n)
 
 
+def clean_10() -> EvalConfig:
+    """10 episodes per task of 150 steps, clean (EvalConfig's defaults; reach-v3)."""
+    return EvalConfig()
+
+
+def clean_dim_2() -> EvalConfig:
+    """CI: 2 episodes per task of 20 steps, clean and dim:0.7, in this process."""
+    return EvalConfig(episodes=2, max_steps=20, workers=1, videos=1, conditions=("clean", "dim:0.7"))
+
+
+def clean_dim_noise_10() -> EvalConfig:
+    """10 episodes per task of 150 steps, clean, dim:0.7 and gaussian_noise:0.5."""
+    return EvalConfig(episodes=10, conditions=("clean", "dim:0.7", "gaussian_noise:0.5"))
+
+
+def libero_spatial_25() -> EvalConfig:
+    """LIBERO-Spatial task by task on initial states 25..49 (220 steps, clean), leaving 0..24 to
+    `gazereg collect --env libero`; one worker per core."""
+    return EvalConfig(
+        env="libero",
+        tasks=tuple(f"libero_spatial/{k}" for k in range(10)),
+        episodes=25,
+        seed_start=25,
+        max_steps=220,
+        workers=os.cpu_count() or 2,
+    )
+
+
+def robustness_50() -> EvalConfig:
+    """50 episodes per task of 200 steps under every condition of ROBUSTNESS_CONDITIONS; one worker per core."""
+    return EvalConfig(
+        episodes=50,
+        max_steps=200,
+        workers=os.cpu_count() or 2,
+        conditions=ROBUSTNESS_CONDITIONS,
+    )
+
+
 def presets() -> dict[str, Callable[[], EvalConfig]]:
+    """The evaluation budgets, `gazereg eval --preset NAME` (the first is the default; `gazereg presets`)."""
     return {
-        "default": EvalConfig,
-        "smoke": lambda: EvalConfig(
-            episodes=2, max_steps=20, workers=1, videos=1, conditions=("clean", "dim:0.7")
-        ),
-        "quick": lambda: EvalConfig(episodes=10, conditions=("clean", "dim:0.7", "gaussian_noise:0.5")),
-        # LIBERO-Spatial task by task on initial states 25..49, leaving 0..24 to `gazereg collect --env libero`.
-        "libero": lambda: EvalConfig(
-            env="libero",
-            tasks=tuple(f"libero_spatial/{k}" for k in range(10)),
-            episodes=25,
-            seed_start=25,
-            max_steps=220,
-            workers=os.cpu_count() or 2,
-        ),
-        "paper": lambda: EvalConfig(
-            episodes=50,
-            max_steps=200,
-            workers=os.cpu_count() or 2,
-            conditions=ROBUSTNESS_CONDITIONS,
-        ),
+        "clean-10": clean_10,
+        "clean-dim-2": clean_dim_2,
+        "clean-dim-noise-10": clean_dim_noise_10,
+        "libero-spatial-25": libero_spatial_25,
+        "robustness-50": robustness_50,
     }
 
 

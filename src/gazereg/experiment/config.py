@@ -1,5 +1,7 @@
 """The experiment's configuration and its named presets (smoke, quick, paper, sweep, full, libero,
-libero_smoke).
+libero_smoke). Other commands' presets have names of their own kind (training recipes, evaluation and
+collection budgets, policy and GLC sizes); `gazereg presets` lists them all. What the presets cost and what
+they were sized from (measured): docs/presets.md.
 
 An `ExperimentConfig` checks its options when it is built, its nested `train` and `eval` configs theirs
 (`gazereg.runtime.config.Validated`): a bad value is a UsageError naming the option as typed, e.g.
@@ -24,8 +26,8 @@ from gazereg.runtime.config import Validated, option, require_entries, require_n
 from gazereg.runtime.errors import UsageError
 from gazereg.training.arms import UnknownArm, arm
 from gazereg.training.config import DataConfig, GazeConfig, OptimConfig, TrainConfig
-from gazereg.training.config import quick as quick_train
-from gazereg.training.config import smoke as smoke_train
+from gazereg.training.config import ci as ci_train
+from gazereg.training.config import cpu as cpu_train
 from gazereg.training.config import tuned as tuned_train
 
 
@@ -69,7 +71,7 @@ class ExperimentConfig(Validated):
     aggregation: AggregationConfig = field(default_factory=lambda: AggregationConfig(past=2, future=2))
     arms: tuple[str, ...] = ("baseline", "gaze", "perturbed")
     train_seeds: tuple[int, ...] = (0,)
-    train: TrainConfig = field(default_factory=quick_train)
+    train: TrainConfig = field(default_factory=cpu_train)
     parallel: int = 2
     """training processes at once (each with threads_per_run threads); as many as runs keeps every core busy
     to the end instead of leaving one run to train alone"""
@@ -167,22 +169,15 @@ EXECUTION_KEYS = (
 
 # ----- presets ------------------------------------------------------------------------------------------------
 def quick() -> ExperimentConfig:
-    """The README's main job (`make demo`), sized to detect the gain the `paper` preset measured, in about 12
-    minutes on 2 CPU cores: baseline against gaze on reach-v3 and button-press-topdown-v3, 50 demonstrations
-    per task, one training seed, 5,000 steps of batch 32 (bf16 where the CPU has it), 25 unseen setups per
-    task, clean condition only (robustness is the `paper` preset's job).
-
-    Power: the `paper` preset's gaze-vs-baseline clean comparison had 85 pairs only gaze solved and 8 only
-    the baseline solved of 300; `python scripts/power.py --a-only 85 --b-only 8 --pairs 300` gives power
-    0.93 for exact McNemar at alpha 0.05 with 50 pairs (0.85 with 40, 0.68 with 30), hence 25 setups x 2
-    tasks. Those rates were measured at 8,000 steps with 3 seeds; 5,000 steps is what fits in the time, and
-    the paper run's checkpoints showed most of the gaze arm's gain by then (docs/results.md, "Training
-    budget"), so the power at this size is an estimate, not a promise."""
+    """The README's main job (`make demo`): baseline against gaze on reach-v3 and button-press-topdown-v3, 50
+    demonstrations per task, one training seed, 5,000 steps of batch 32 (bf16 where the CPU has it), 25 unseen
+    setups per task, clean condition only (robustness is the `paper` preset's job). Why this size, and its
+    time: docs/presets.md."""
     return ExperimentConfig(
         out=Path("runs/quick"),
         demos_per_task=50,
         arms=("baseline", "gaze"),
-        train=replace(quick_train(), steps=5000, batch_size=32),
+        train=replace(cpu_train(), steps=5000, batch_size=32),
         parallel=2,
         eval=EvalConfig(episodes=25, max_steps=120, conditions=("clean",)),
         convergence_points=2,
@@ -191,7 +186,8 @@ def quick() -> ExperimentConfig:
 
 
 def smoke() -> ExperimentConfig:
-    t = smoke_train()
+    """CI: every stage of the pipeline at toy size (reach-v3, 48 px, 3 demonstrations, 12 training steps)."""
+    t = ci_train()
     return ExperimentConfig(
         out=Path("runs/smoke"),
         tasks=("reach-v3",),
@@ -247,8 +243,7 @@ def sweep() -> ExperimentConfig:
     soccer; pick-place, push), trained together with the `paper` preset's recipe (one seed); baseline,
     visuomotor gaze, cross-fitted glc (two GLCs, each trained on the other four tasks' demonstrations, 2 easy,
     1 medium and 1 hard each: no task's prior comes from a GLC that saw its gaze) and the location control; 50
-    unseen setups per task, clean. About 107 minutes on 2 cores, measured by its run (docs/results.md): demos
-    ~1.5, the two GLC folds ~25, training (4 runs, 2 at once) ~68, evaluation (4 x 400 episodes) ~12."""
+    unseen setups per task, clean. Its time: docs/presets.md."""
     tasks = draw_tasks(SWEEP_DRAW, exclude=quick().tasks, seed=0)
     return ExperimentConfig(
         out=Path("runs/sweep"),
@@ -267,7 +262,7 @@ def sweep() -> ExperimentConfig:
 def full() -> ExperimentConfig:
     """The wider study for a many-core machine with a GPU: 5 tasks at 128 px, every gaze-source ablation arm,
     3 seeds x 20,000 steps, the full lighting and noise sweep (evaluate.ROBUSTNESS_CONDITIONS), 50 episodes per task and condition."""
-    t = quick_train()
+    t = cpu_train()
     return ExperimentConfig(
         out=Path("runs/full"),
         tasks=("reach-v3", "button-press-topdown-v3", "pick-place-v3", "drawer-open-v3", "push-v3"),
@@ -297,31 +292,22 @@ def full() -> ExperimentConfig:
 
 
 def libero() -> ExperimentConfig:
-    """LIBERO-Spatial, the paper's benchmark, on 2 CPU cores in at most about 2 h 20 min (`bash
-    scripts/libero_env.sh gazereg experiment --preset libero`): baseline, gaze (visuomotor), cross-fitted glc
-    and perturbed gaze, one training seed, its 10 tasks from the agentview camera at 128 px (patches of 16 px:
-    the 8 x 8 grid of the other presets), evaluated on initial states 25..49 (`gazereg eval --preset libero`,
-    220 steps) clean, and on the first 5 of them per task dimmed (`dim:0.7`) and with sensor noise
-    (`gaussian_noise:0.5`): 250 pairs per arm clean, 50 per perturbed condition.
+    """LIBERO-Spatial, the paper's benchmark (`bash scripts/libero_env.sh gazereg experiment --preset libero`):
+    baseline, gaze (visuomotor), cross-fitted glc and perturbed gaze, one training seed, its 10 tasks from the
+    agentview camera at 128 px (patches of 16 px: the 8 x 8 grid of the other presets), evaluated on initial
+    states 25..49 (the evaluation budget `libero-spatial-25`, 220 steps) clean, and on the first 5 of them per
+    task dimmed (`dim:0.7`) and with sensor noise (`gaussian_noise:0.5`): 250 pairs per arm clean, 50 per
+    perturbed condition.
 
     Demonstrations: the expert on initial states 0..24 only (`demo_max_failures=0`: a failure is not replaced
     by a state the evaluation uses); a task keeps fewer where the expert fails, and the report counts them.
-    The expert's longest rollout on states 0..24 of tasks 0, 3, 5 and 8 was 164 steps (107, 164, 110, 113;
-    all 100 succeeded within 400), so 220 steps leave it a margin of 56. glc: two fold GLCs (tasks 0-4 and
-    5-9), each trained 300 steps on the other half's demonstrations, so no task's glc prior comes from a GLC
-    that saw its gaze (a 30-step GLC already beat the centre prior within tasks 0 and 5: F1 0.66 vs 0.56).
-
-    Time on 2 cores (minutes; per-item costs measured here with at most one core taken by other jobs):
-    demos (250 + 20 held-out) x 4.9 s (2 workers; one worker kept a demo every 4.6 s) = 22; priors: GLC
-    training 2 x 300 steps x 1.8 s (1 thread) = 18, GLC maps 29,000 frames / 49 frames/s (1 thread) = 10, the
-    folds' scoring (every 5th episode of the tasks each predicts) 2, visuomotor and shuffled priors 2 = 32;
-    training 4 runs x 6,000 steps x 0.13 s (1 thread, bf16, batch 32; 0.12 s at 96 px) / 2 at once = 26;
-    evaluation (4 arms x 250 clean + 2 x 4 x 50 perturbed) = 1,400 episodes x at most 2.5 s (a failing one:
-    220 steps on 2 workers) = 58; alignment and report 2. Total at most ~140. Success-versus-steps is not
-    evaluated (`convergence_points=1`): a curve would cost another evaluation per checkpoint."""
-    ev = eval_presets()["libero"]()
+    glc: two fold GLCs (tasks 0-4 and 5-9), each trained 300 steps on the other half's demonstrations, so no
+    task's glc prior comes from a GLC that saw its gaze. Success-versus-steps is not evaluated
+    (`convergence_points=1`): a curve would cost another evaluation per checkpoint. Why 220 steps, and the
+    time on 2 cores: docs/presets.md."""
+    ev = eval_presets()["libero-spatial-25"]()
     tasks = ev.tasks
-    t = quick_train()
+    t = cpu_train()
     return ExperimentConfig(
         out=Path("runs/libero"),
         env="libero",
@@ -352,7 +338,7 @@ def libero() -> ExperimentConfig:
 def libero_smoke() -> ExperimentConfig:
     """Every stage of the `libero` preset at toy size (the slow test tests/envs/test_libero_experiment.py, in
     the LIBERO venv): 2 tasks, 2 demonstrations each, 4 training steps, 2 evaluation episodes of 10 steps."""
-    ev = eval_presets()["libero"]()
+    ev = eval_presets()["libero-spatial-25"]()
     tasks = ev.tasks[:2]
     return replace(
         libero(),
@@ -366,7 +352,7 @@ def libero_smoke() -> ExperimentConfig:
         glc=GLCParams(hop=8),
         glc_steps=2,
         glc_folds=((tasks[0],), (tasks[1],)),
-        train=replace(smoke_train(), steps=4, gaze=GazeConfig(weight=0.1)),
+        train=replace(ci_train(), steps=4, gaze=GazeConfig(weight=0.1)),
         parallel=1,
         eval=replace(
             ev,

@@ -1,8 +1,10 @@
-"""`gazereg train`'s configuration: the data, gaze and optimiser settings, the run, and the presets.
+"""`gazereg train`'s configuration: the data, gaze and optimiser settings, the run, and its presets, the
+training recipes (`gazereg presets` lists every kind of preset):
 
-    smoke()   CI: a few seconds on a CPU
-    quick()   the README's CPU job
-    paper()   a GPU-sized run
+    ci()      CI: a few seconds on a CPU
+    cpu()     the tiny VLA on a CPU
+    tuned()   `cpu` as tuned without gaze
+    gpu()     a GPU-sized run
 
 `gazereg train --preset NAME` starts from PRESETS[NAME]; every field can be overridden on the command line
 (e.g. --gaze.prior visuomotor --optim.lr 3e-4). The presets train the reference VLA; `--policy.type NAME`
@@ -26,7 +28,7 @@ from typing import Any, ClassVar, Literal, get_args
 from gazereg.losses import Divergence
 from gazereg.policies import POLICY_CHOICE, PolicyConfig
 from gazereg.policies.vla.configuration_vla import VLAConfig
-from gazereg.policies.vla.configuration_vla import paper as paper_policy
+from gazereg.policies.vla.configuration_vla import large as large_policy
 from gazereg.runtime.config import Validated, option, require_choice, require_number
 from gazereg.runtime.errors import UsageError
 
@@ -243,8 +245,8 @@ def upgrade_saved(saved: dict[str, Any]) -> dict[str, Any]:
     return saved
 
 
-def smoke() -> TrainConfig:
-    """CI: a few seconds on a CPU (a 2-layer 64-wide policy on 48 px images)."""
+def ci() -> TrainConfig:
+    """CI: a few seconds on a CPU (a 2-layer 64-wide policy on 48 px images, 20 steps of batch 8)."""
     return TrainConfig(
         run_dir=Path("runs/smoke"),
         steps=20,
@@ -263,17 +265,16 @@ def smoke() -> TrainConfig:
     )
 
 
-def quick() -> TrainConfig:
-    """The README's CPU job: the tiny policy (about 0.6 M parameters, 96 px), 1,500 steps of batch 64."""
+def cpu() -> TrainConfig:
+    """The tiny policy (about 0.6 M parameters, 96 px) on a CPU: 1,500 steps of batch 64."""
     return TrainConfig(run_dir=Path("runs/quick"), device="cpu")
 
 
 def tuned() -> TrainConfig:
-    """The reference VLA's recipe tuned without gaze on validation setups (scripts/tune_baseline.py; its
-    choice and every candidate's validation successes in docs/tuning/baseline.md): `quick` with learning rate
-    5e-4, action chunks of 8 and 16,000 steps of batch 32. The experiment's `paper` and `sweep` presets train
-    with it."""
-    q = quick()
+    """`cpu` tuned without gaze on validation setups: learning rate 5e-4, action chunks of 8, 16,000 steps of
+    batch 32 (scripts/tune_baseline.py; its choice and every candidate's validation successes in
+    docs/tuning/baseline.md). The experiment presets `paper` and `sweep` train with it."""
+    q = cpu()
     return replace(
         q,
         steps=16_000,
@@ -283,13 +284,14 @@ def tuned() -> TrainConfig:
     )
 
 
-def paper() -> TrainConfig:
-    """A GPU-sized run: 224 px, 16 x 16 patches, width 512, 8 layers, chunks of 10, EMA, bf16."""
+def gpu() -> TrainConfig:
+    """A GPU-sized run: the `large` policy (224 px, 16 x 16 patches, width 512, 8 layers, chunks of 10), 100,000
+    steps of batch 64, EMA, bf16."""
     return TrainConfig(
         run_dir=Path("runs/paper"),
         steps=100_000,
         batch_size=64,
-        policy=paper_policy(),
+        policy=large_policy(),
         optim=OptimConfig(lr=3e-4, weight_decay=1e-2, warmup_steps=1000, min_lr_frac=0.05, ema_decay=0.999),
         data=DataConfig(num_workers=4, in_memory=False),
         shift=8,
@@ -303,4 +305,11 @@ def paper() -> TrainConfig:
     )
 
 
-PRESETS = {"smoke": smoke, "quick": quick, "tuned": tuned, "paper": paper}
+PRESETS = {"ci": ci, "cpu": cpu, "tuned": tuned, "gpu": gpu}
+"""the training recipes, `gazereg train --preset NAME` (the first is the default)"""
+
+smoke, quick, paper = (
+    ci,
+    cpu,
+    gpu,
+)  # the recipes' former names, for code that imports them; prefer the new ones

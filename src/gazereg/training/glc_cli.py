@@ -1,10 +1,10 @@
 """`gazereg glc train`: train or fine-tune GLC on an episode store's gaze (`train_glc_on_store`).
 
     gazereg glc train --store data/demos --camera corner2 --gaze-source visuomotor --out runs/glc
-    gazereg glc train --preset full --init GLC_ego4d.pyth ...          (fine-tune the official model)
+    gazereg glc train --preset finetune-official --init GLC_ego4d.pyth ...          (fine-tune the official model)
 
-Presets: `small` (96 px, 3.5 M parameters, trains on a CPU in minutes) and `full` (the official 256 px
-architecture). Gaze points come from a gaze source (`--gaze-source visuomotor`: the simulated eye tracker),
+Presets (the GLC training recipes): `scratch-small` (the `small` GLC, 96 px, 3.5 M parameters, from scratch)
+and `finetune-official` (the `official` 256 px architecture, fine-tuned). Gaze points come from a gaze source (`--gaze-source visuomotor`: the simulated eye tracker),
 from recorded `gaze_uv.<camera>` extras (`--gaze-source recorded`), or from the peak of any other source's
 maps. Every `--holdout-every`-th episode of each task (or `--holdout`) is held out and, after training,
 scored with the GLC paper's metrics against a centre prior and the uniform map (`<out>/eval.json`). The
@@ -38,14 +38,21 @@ class GLCTrainCommand(GLCRunSettings):
         return GLCStoreTrainConfig(**settings, gaze=parse_source_params(self.gaze_source, self.gaze_params))
 
 
-def _full() -> GLCTrainCommand:
+def scratch_small() -> GLCTrainCommand:
+    """The `small` GLC (96 px) trained from scratch (GLCTrainCommand's defaults)."""
+    return GLCTrainCommand()
+
+
+def finetune_official() -> GLCTrainCommand:
+    """The `official` GLC (256 px) fine-tuned: 1,000 steps of batch 4 at learning rate 1e-4."""
     optim = GLCTrainConfig(steps=1000, batch_size=4, lr=1e-4, warmup_steps=100, checkpoint_every=100)
-    return GLCTrainCommand(config="full", optim=optim)
+    return GLCTrainCommand(config="official", optim=optim)
 
 
 def train_presets() -> dict[str, Callable[[], GLCTrainCommand]]:
-    """`small` (the default) and `full`."""
-    return {"small": GLCTrainCommand, "full": _full}
+    """The GLC training recipes, `gazereg glc train --preset NAME`: `scratch-small` (the default) and
+    `finetune-official`."""
+    return {"scratch-small": scratch_small, "finetune-official": finetune_official}
 
 
 def main(argv: list[str]) -> int:

@@ -60,7 +60,7 @@ class GLCRunSettings(Validated):
     camera: str = "corner2"
     out: Path = Path("runs/glc")
     config: GLCConfigName = "small"
-    """GLC architecture: small (96 px, 3.5 M params) | full (official, 256 px, 70 M)"""
+    """GLC size: small (96 px, 3.5 M params) | official (256 px, 70 M)"""
     init: Path | None = None
     """fine-tune from: a folder from `gazereg glc train` or an official GLC checkpoint; None = random init"""
     stride: int = 2

@@ -1,10 +1,10 @@
 """`gazereg train`: one training loop for baseline and gaze-regularized policies.
 
-    gazereg train --preset quick --data.store data/demos --run-dir runs/base
-    gazereg train --preset quick --data.store data/demos --run-dir runs/gaze --gaze.prior visuomotor
+    gazereg train --preset cpu --data.store data/demos --run-dir runs/base
+    gazereg train --preset cpu --data.store data/demos --run-dir runs/gaze --gaze.prior visuomotor
     gazereg train ... --resume                                   (continue from the newest checkpoint)
     gazereg train ... --policy.type NAME --policy.FIELD value   (another registered policy: gazereg.policies)
-    accelerate launch --multi_gpu --num_processes 2 -m gazereg.training.loop --preset smoke ...   (DDP; CPU: gloo)
+    accelerate launch --multi_gpu --num_processes 2 -m gazereg.training.loop --preset ci ...   (DDP; CPU: gloo)
 
 Loss per step:  L = L_action + w(step) * mean_{valid b} KL(gaze_b || attention_b)
 where attention_b is the action queries' attention to the gaze camera's patch tokens on `gaze.layers`

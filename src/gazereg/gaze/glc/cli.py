@@ -1,7 +1,7 @@
 """`gazereg glc`: train and evaluate the GLC video gaze estimator on an episode store.
 
     gazereg glc train --store data/demos --camera corner2 --gaze-source visuomotor --out runs/glc
-    gazereg glc train --preset full --init GLC_ego4d.pyth ...          (fine-tune the official model)
+    gazereg glc train --preset finetune-official --init GLC_ego4d.pyth ...          (fine-tune the official model)
     gazereg glc eval  --store data/demos --checkpoint runs/glc
 
 `train` (`gazereg.training.glc_cli`) learns from any episodes that carry per-frame gaze points and writes
@@ -45,7 +45,7 @@ class GLCEvalCommand(Validated):
     checkpoint: Path = Path("runs/glc")
     """a folder from `gazereg glc train` (run folder or its final/), or an official checkpoint file"""
     config: GLCConfigName | None = None
-    """architecture of an official checkpoint file (full | small)"""
+    """architecture of an official checkpoint file (official | small)"""
     camera: str | None = None
     """default: the training camera (glc_train.json), else corner2"""
     gaze_source: str | None = None

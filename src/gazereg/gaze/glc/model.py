@@ -4,7 +4,7 @@ A clean re-implementation of the official `GLC_Gaze` model (MViT-B 16x4 conv bac
 GLC block + transformer decoder) whose `state_dict()` has exactly the official names and shapes, so the
 released SlowFast checkpoints load strictly (see `gazereg.gaze.glc.checkpoint`).
 
-Data flow for `GLCConfig.full()` (B = batch, global token first in every token tensor):
+Data flow for `GLCConfig.official()` (B = batch, global token first in every token tensor):
 
     clip (B,3,8,256,256) --patch_embed Conv3d k(3,7,7) s(2,4,4)--> map (B,96,4,64,64)
     global_embed(map) -> (B,1,96)                       [BN+ReLU, 3 strided convs, Linear]
@@ -81,9 +81,14 @@ class GLCConfig:
 
     # ---- presets -------------------------------------------------------------------------------
     @classmethod
-    def full(cls) -> GLCConfig:
+    def official(cls) -> GLCConfig:
         """Official GLC (MViT-B 16x4 conv): input (B,3,8,256,256) -> logits (B,1,8,64,64); 70.18 M params."""
         return cls()
+
+    @classmethod
+    def full(cls) -> GLCConfig:
+        """The official size's former name (`official`)."""
+        return cls.official()
 
     @classmethod
     def small(cls) -> GLCConfig:
@@ -228,7 +233,7 @@ class GLC(nn.Module):
 
     def __init__(self, cfg: GLCConfig | None = None) -> None:
         super().__init__()
-        cfg = cfg if cfg is not None else GLCConfig.full()
+        cfg = cfg if cfg is not None else GLCConfig.official()
         self.cfg = cfg
         e = cfg.embed_dim
         t, h, w = cfg.token_grid

@@ -1,7 +1,7 @@
 """The `glc` gaze source: per-frame gaze maps predicted by the GLC video gaze estimator.
 
     gazereg priors --store S --source glc --source-params checkpoint=runs/glc/final stride=2
-    make_gaze_source(GLCParams(checkpoint=Path("GLC_ego4d.pyth"), config="full", mode="centre"))
+    make_gaze_source(GLCParams(checkpoint=Path("GLC_ego4d.pyth"), config="official", mode="centre"))
 
 For frame t the 8-frame clip is centred on t: frames `t + (k - 4) * stride`, k = 0..7 (t at position 4),
 edge frames repeated (`gazereg.gaze.glc.data.clip_indices`). Frames are used as stored (upright, as the policy
@@ -39,9 +39,10 @@ from gazereg.gaze.sources import register_gaze_source
 from gazereg.gaze.sources.params import GazeSourceParams
 from gazereg.runtime.errors import UsageError
 
-CONFIGS = {"full": GLCConfig.full, "small": GLCConfig.small}
+CONFIGS = {"official": GLCConfig.official, "small": GLCConfig.small}
+"""the GLC sizes (`gazereg presets`): the official architecture and a small one"""
 MODES = ("centre", "average")
-GLCConfigName = Literal["full", "small"]
+GLCConfigName = Literal["official", "small"]
 GLCMode = Literal["centre", "average"]
 
 
@@ -67,19 +68,19 @@ def load_glc_model(
 
     `checkpoint` is a folder written by `save_glc` / `gazereg glc train` (its `config.json` decides the
     architecture; a run folder with a `final/` subfolder is accepted too), an official GLC checkpoint
-    file (architecture from `config`, default `full`), or the literal `random` (random weights seeded by
+    file (architecture from `config`, default `official`), or the literal `random` (random weights seeded by
     `seed`: only for tests and benchmarks).
     """
     if checkpoint is None or str(checkpoint) == "":
         raise UsageError(
             "the glc gaze source needs a checkpoint: checkpoint=<folder written by `gazereg glc train`> or "
-            "checkpoint=<official GLC .pyth file> config=full (checkpoint=random only for tests/benchmarks)"
+            "checkpoint=<official GLC .pyth file> config=official (checkpoint=random only for tests/benchmarks)"
         )
     if config is not None and config not in CONFIGS:
         raise UsageError(f"unknown GLC config {config!r}; use one of {sorted(CONFIGS)}")
     if str(checkpoint) == "random":
         torch.manual_seed(seed)
-        model = GLC(CONFIGS[config or "full"]())
+        model = GLC(CONFIGS[config or "official"]())
         return model.eval(), {"checkpoint": "random", "seed": seed}
     path = Path(checkpoint).expanduser()
     if not path.exists():
@@ -98,7 +99,7 @@ def load_glc_model(
             raise UsageError(f"checkpoint {path} holds a {config_name(model.cfg)!r} GLC, not {config!r}")
         weights = path / WEIGHTS_NAME
     else:
-        model = load_glc_checkpoint(GLC(CONFIGS[config or "full"]()), path)
+        model = load_glc_checkpoint(GLC(CONFIGS[config or "official"]()), path)
         weights = path
     return model.eval(), {"checkpoint": str(path.resolve()), "checkpoint_sha256": file_sha256(weights, 16)}
 
@@ -108,7 +109,7 @@ class GLCParams(GazeSourceParams):
     """Parameters of the `glc` source.
 
     checkpoint: folder from `gazereg glc train` / `save_glc`, an official checkpoint file, or `random`.
-    config: `full` | `small` for official files and `random` (folders carry their own config).
+    config: `official` | `small` for official files and `random` (folders carry their own config).
     stride: frames between the clip's frames (the clip spans `8 * stride` frames).
     mode: `average` (default) or `centre`.
     hop: in `average` mode, clip spacing in frames of one stride phase.

@@ -1,4 +1,4 @@
-"""Configuration of the reference VLA policy (frozen dataclasses, presets `tiny` and `paper`).
+"""Configuration of the reference VLA policy (frozen dataclasses, the policy sizes `tiny` and `large`).
 
 A config has two kinds of fields: architecture choices (widths, depth, image and patch size, head) set by a
 preset, and data-dependent fields (cameras and their stored frame sizes, state/action dimensions from
@@ -105,7 +105,7 @@ def tiny() -> VLAConfig:
     return VLAConfig()
 
 
-def paper() -> VLAConfig:
+def large() -> VLAConfig:
     """GPU-sized: 224 px -> 16 x 16 tokens of 14 px (a ViT-L/14-like grid), width 512, 8 layers, chunks of 10."""
     return VLAConfig(
         image_hw=(224, 224),
@@ -123,4 +123,5 @@ def paper() -> VLAConfig:
     )
 
 
-PRESETS = {"tiny": tiny, "paper": paper}
+PRESETS = {"tiny": tiny, "large": large}
+"""the policy sizes (`gazereg presets`)"""
