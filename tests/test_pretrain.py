@@ -184,3 +184,12 @@ def test_a_run_saved_before_extra_instructions_compares_as_one_without_them():
     old = {"data": {"store": "x"}, "gaze": {"prior": None}}
     assert upgrade_saved(old)["data"]["extra_instructions"] == []
     assert upgrade_saved(old)["gaze"]["target"] == "attention"
+
+
+@pytest.mark.parametrize("command", ["experiment", "pretrain"])
+def test_experiment_and_pretrain_refuse_a_missing_init_folder_before_any_work(tmp_path, capsys, command):
+    out = tmp_path / "out"
+    preset = ["--preset", "smoke"] if command == "pretrain" else []
+    assert cli.main([command, *preset, "--out", str(out), "--train.init-from", str(tmp_path / "none")]) == 2
+    assert f"--train.init-from {tmp_path / 'none'}: no such folder" in capsys.readouterr().err
+    assert not out.exists()

@@ -21,6 +21,7 @@ from gazereg.gaze.sources import make_gaze_source
 from gazereg.gaze.sources.glc import GLCParams, load_glc_model
 from gazereg.gaze.sources.glc_folds import GLCFoldsParams
 from gazereg.runtime.errors import UsageError, one_line
+from gazereg.training.init_from import read_init
 
 
 def preflight(cfg: ExperimentConfig) -> None:
@@ -37,6 +38,8 @@ def preflight(cfg: ExperimentConfig) -> None:
             raise UsageError(
                 f"--train.data.tasks: {unknown[0]!r} is not one of the experiment's tasks ({', '.join(stored)})"
             )
+    if cfg.train.init_from is not None:  # a saved policy of this type; the train stage checks its shapes
+        read_init(Path(cfg.train.init_from), cfg.train.policy.type, "--train.init-from")
     if cfg.glc.checkpoint is not None:
         check_glc_checkpoint(cfg.glc)
     for prior in priors_to_check(cfg):

@@ -39,6 +39,7 @@ from gazereg.training.config import EXECUTION_KEYS as TRAIN_EXECUTION_KEYS
 from gazereg.training.config import OptimConfig, TrainConfig
 from gazereg.training.config import smoke as smoke_train
 from gazereg.training.config import tuned as tuned_train
+from gazereg.training.init_from import read_init
 
 TEXT_TOKENS = 16
 """word tokens of the presets' instruction: the longest ML45 instruction has 13 words"""
@@ -124,6 +125,8 @@ def preflight(cfg: PretrainConfig) -> None:
     seen = [t for t in cfg.tasks if t in held_out]
     if seen:
         raise UsageError(f"--tasks: {seen[0]} is one of ML45's held-out tasks ({', '.join(held_out)})")
+    if cfg.train.init_from is not None:
+        read_init(Path(cfg.train.init_from), cfg.train.policy.type, "--train.init-from")
     kind, length = getattr(cfg.train.policy, "tokenizer", None), getattr(cfg.train.policy, "max_text_len", 0)
     if kind is None:
         return
