@@ -314,12 +314,15 @@ def camera_layout(n: int, input_hw: tuple[int, int], tiny: bool) -> list[tuple[s
     return [(f"observation.images.{names[i]}", first if i == 0 else input_hw) for i in range(n)]
 
 
-def build(name: str, args: argparse.Namespace, workdir: Path, device: str, bf16: bool) -> tuple[Any, dict]:
-    """(policy in train mode on `device`, description) for configuration `name`."""
+def build(
+    name: str, args: argparse.Namespace, workdir: Path, device: str, bf16: bool, meta: bool = False
+) -> tuple[Any, dict]:
+    """(policy in train mode on `device`, description) for configuration `name`; with `meta`, its parameters on
+    the meta device (shapes and dtypes, no memory)."""
     import torch
 
     torch.manual_seed(args.seed)
-    build_device = "meta" if args.params_only else device
+    build_device = "meta" if meta else device
     if name == "smolvla":
         from lerobot_policy_gazereg.configuration_smolvla_gaze import SmolVLAGazeConfig
         from lerobot_policy_gazereg.modeling_smolvla_gaze import SmolVLAGazePolicy
@@ -376,7 +379,7 @@ def build(name: str, args: argparse.Namespace, workdir: Path, device: str, bf16:
             freeze_vision_encoder=args.freeze_vision,
         )
         cfg = _features(GC(**kw), cams)
-        if args.params_only:
+        if meta:
             cfg.device = "meta"  # PI0Policy moves its model to config.device at the end of __init__
         sizes = tiny_pi_models() if args.tiny else _cl.nullcontext()
         with sizes, pi_depth(args.pi_depth), torch.device(build_device):
@@ -403,7 +406,7 @@ def build(name: str, args: argparse.Namespace, workdir: Path, device: str, bf16:
         params_total=sum(p.numel() for p in policy.parameters()),
         params_trainable=sum(p.numel() for p in policy.parameters() if p.requires_grad),
     )
-    if not args.params_only:
+    if not meta:
         policy.to(device)
         policy.train()
     return policy, desc
@@ -675,24 +678,31 @@ def write_json(path: Path, result: dict[str, Any]) -> None:
 
 
 def measure(name: str, args: argparse.Namespace, workdir: Path, bf16: bool) -> dict[str, Any]:
-    """The JSON entry of one configuration: its model, and its runs and grid check (or why it was skipped)."""
-    t0 = time.perf_counter()
-    policy, desc = build(name, args, workdir, args.device, bf16)
-    desc["build_s"] = round(time.perf_counter() - t0, 2)
-    desc["weights_grads_adam_bytes"] = needed_bytes(policy)
+    """The JSON entry of one configuration: its model, and its runs and grid check (or why it was skipped).
+
+    The model is first built on the meta device to see whether it fits: weights + gradients + AdamW's moments, and
+    the float32 weights lerobot's pi0 / pi05 hold while building before casting to bf16, against the device's free
+    memory (before activations)."""
+    shapes, desc = build(name, args, workdir, args.device, bf16, meta=True)
+    desc["weights_grads_adam_bytes"] = needed_bytes(shapes)
+    build_bytes = 4 * desc["params_total"]
+    del shapes
     entry: dict[str, Any] = {"model": desc}
     if args.params_only:
         return entry
-    # the weights are already resident: the gradients and AdamW's moments still have to fit
-    resident = sum(p.numel() * p.element_size() for p in policy.parameters())
-    more, free = desc["weights_grads_adam_bytes"] - resident, available_bytes(args.device)
-    if more > free and not args.no_fit_check:
+    need, free = max(desc["weights_grads_adam_bytes"], build_bytes), available_bytes(args.device)
+    if need > free and not args.no_fit_check:
         entry["skipped"] = (
-            f"gradients + AdamW need {more / 2**30:.1f} GiB, {free / 2**30:.1f} GiB free "
-            "(--train-expert-only / --freeze-vision / --pi-depth reduce it; --no-fit-check runs anyway)"
+            f"weights + gradients + AdamW need {need / 2**30:.1f} GiB before activations, {free / 2**30:.1f} GiB "
+            "free (--train-expert-only / --freeze-vision / --pi-depth reduce it; --no-fit-check runs anyway)"
         )
         print(f"  skipped: {entry['skipped']}", file=sys.stderr)
         return entry
+    t0 = time.perf_counter()
+    policy, desc = build(name, args, workdir, args.device, bf16)
+    desc["build_s"] = round(time.perf_counter() - t0, 2)
+    desc["weights_grads_adam_bytes"] = entry["model"]["weights_grads_adam_bytes"]
+    entry["model"] = desc
     entry.update(run_config(name, policy, desc, args, args.device, bf16))
     return entry
 

@@ -98,6 +98,25 @@ def test_grid_check_fails_on_a_token_count_mismatch(tmp_path):
     assert check["cameras"]["observation.images.front"]["ok"]
 
 
+def test_a_config_that_does_not_fit_is_skipped_before_it_is_built(tmp_path, monkeypatch):
+    """The memory check runs on the meta-device build: with no free memory the real model is never built."""
+    bench = _bench_module()
+    built = []
+    real_build = bench.build
+    monkeypatch.setattr(
+        bench, "build", lambda *a, **k: built.append(k.get("meta", False)) or real_build(*a, **k)
+    )
+    monkeypatch.setattr(bench, "available_bytes", lambda device: 1)
+    args = bench.parse_args(["--tiny", "--configs", "pi0"])
+    entry = bench.measure("pi0", args, tmp_path, False)
+    assert built == [True] and "runs" not in entry
+    assert (
+        entry["skipped"].startswith("weights + gradients + AdamW need")
+        and "--no-fit-check" in entry["skipped"]
+    )
+    assert entry["model"]["weights_grads_adam_bytes"] > 0
+
+
 def test_params_only_counts_without_running(tmp_path):
     out = tmp_path / "p.json"
     r = _run("--tiny", "--params-only", "--configs", "pi05,smolvla", "--out", str(out))
