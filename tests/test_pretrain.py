@@ -193,3 +193,11 @@ def test_experiment_and_pretrain_refuse_a_missing_init_folder_before_any_work(tm
     assert cli.main([command, *preset, "--out", str(out), "--train.init-from", str(tmp_path / "none")]) == 2
     assert f"--train.init-from {tmp_path / 'none'}: no such folder" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_second_pretraining_reproduces_the_data_and_the_weights_bit_for_bit(pretrained, tmp_path):
+    again = tmp_path / "pt"
+    assert cli.main(["pretrain", "--preset", "smoke", "--out", str(again)]) == 0
+    first, second = (json.loads((d / "manifest.json").read_text()) for d in (pretrained, again))
+    assert second["data"]["fingerprint"] == first["data"]["fingerprint"]
+    assert second["policy"]["model_sha256"] == first["policy"]["model_sha256"]

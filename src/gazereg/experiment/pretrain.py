@@ -12,16 +12,18 @@ configuration but for the execution keys, `pretrain_config.EXECUTION_KEYS`):
   demos     Meta-World's scripted experts on the tasks, on setups of their own (PRETRAIN_DEMOS, from seed
             100,000: gazereg.envs.metaworld.setups), into out/demos (`gazereg.envs.collect.collect`, which
             resumes an interrupted collection)
-  train     one multi-task policy with the bytes tokenizer (every instruction, the held-out tasks' too, is
-            encodable) into out/train (`gazereg.training.loop.train`, resumed from its newest checkpoint);
-            its final weights are copied to out/policy, the folder to fine-tune from
+  train     one multi-task policy conditioned on each task's instruction (a words vocabulary that holds
+            ML45's held-out instructions too: pretrain_config) into out/train (`gazereg.training.loop.train`,
+            resumed from its newest checkpoint); its final weights are copied to out/policy, the folder to
+            fine-tune from
   eval      out/policy on PRETRAIN_EVAL setups of every task, clean, into out/eval
             (`gazereg.evaluation.rollout.evaluate`, resumed from its episode log)
   manifest  out/manifest.json: the command line, git commit, the demonstrations' fingerprint (of every
             episode's fingerprint), the SHA-256 of out/policy/model.safetensors, the parameter count, the
             numerics key, the config, each stage's wall time, the multi-task success, and the options that give
             a fine-tuning run this policy's architecture (`finetune_flags`)
-Presets and checks: `gazereg.experiment.pretrain_config`.
+
+Presets and checks: `gazereg.experiment.pretrain_config`; the study around it: docs/studies/pretraining.md.
 """
 
 from __future__ import annotations
