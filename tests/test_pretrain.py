@@ -1,8 +1,8 @@
-"""`gazereg pretrain --preset smoke` end to end (stages, manifest, rerun), then fine-tuning from its policy
+"""`gazereg pretrain --preset toy` end to end (stages, manifest, rerun), then fine-tuning from its policy
 with `--init-from`: step 0's weights are the pretrained ones bit for bit, the pretrained tokenizer and
 normalisation are kept, a paused fine-tuning run resumes to the uninterrupted run's weights, and what does not
 fit (another architecture, tokenizer or policy type, a folder that is no saved policy) is refused in one line.
-About a minute on 2 cores (a smoke pretraining, a 2-episode collection of a held-out task, a few tiny runs)."""
+About a minute on 2 cores (a toy pretraining, a 2-episode collection of a held-out task, a few tiny runs)."""
 
 from __future__ import annotations
 
@@ -34,15 +34,15 @@ pytest.importorskip("metaworld")
 
 @pytest.fixture(scope="module")
 def pretrained(tmp_path_factory) -> Path:
-    """A finished smoke pretraining folder."""
+    """A finished toy pretraining folder."""
     out = tmp_path_factory.mktemp("pretrain") / "pt"
-    assert cli.main(["pretrain", "--preset", "smoke", "--out", str(out)]) == 0
+    assert cli.main(["pretrain", "--preset", "toy", "--out", str(out)]) == 0
     return out
 
 
 @pytest.fixture(scope="module")
 def held_out_store(tmp_path_factory) -> Path:
-    """Two demonstrations of a held-out ML45 task (door-unlock), at the smoke preset's frame size."""
+    """Two demonstrations of a held-out ML45 task (door-unlock), at the toy preset's frame size."""
     out = tmp_path_factory.mktemp("ft") / "demos"
     cfg = CollectConfig(
         out=out, tasks=("door-unlock-v3",), episodes=2, image_size=48, max_steps=150, workers=1
@@ -52,8 +52,8 @@ def held_out_store(tmp_path_factory) -> Path:
 
 
 def finetune_config(pretrained: Path, store: Path, run_dir: Path, **changes) -> TrainConfig:
-    """`gazereg train --preset smoke` with the pretrained architecture, from its policy folder."""
-    base = PRESETS["smoke"]().train
+    """`gazereg train --preset toy` with the pretrained architecture, from its policy folder."""
+    base = PRESETS["toy"]().train
     return replace(
         base,
         run_dir=run_dir,
@@ -69,9 +69,9 @@ def test_pretrain_runs_every_stage_and_writes_its_manifest(pretrained, capsys):
     policy = pretrained / "policy"
     assert manifest["policy"]["model_sha256"] == file_sha256(policy / "model.safetensors")
     assert manifest["data"]["fingerprint"] == store_fingerprint(EpisodeStore(pretrained / "demos"))
-    assert manifest["command"][:2] == ["gazereg", "pretrain"] and manifest["preset"] == "smoke"
+    assert manifest["command"][:2] == ["gazereg", "pretrain"] and manifest["preset"] == "toy"
     assert set(manifest["stage_seconds"]) == {"demos", "train", "eval"}
-    assert manifest["policy"]["finetune_flags"] == finetune_flags(PRESETS["smoke"]().train.policy)
+    assert manifest["policy"]["finetune_flags"] == finetune_flags(PRESETS["toy"]().train.policy)
     assert "--train.policy.max-text-len" in manifest["policy"]["finetune_flags"]
     assert manifest["evaluation"]["pooled"]["n"] == 2  # 1 episode x 2 tasks
     tokenizer = load_policy(policy).tokenizer
@@ -84,13 +84,13 @@ def test_pretrain_runs_every_stage_and_writes_its_manifest(pretrained, capsys):
     assert min(seeds) >= 100_000
     # a rerun skips every stage and leaves the policy as it was
     before = (policy / "model.safetensors").stat().st_mtime_ns
-    assert cli.main(["pretrain", "--preset", "smoke", "--out", str(pretrained)]) == 0
+    assert cli.main(["pretrain", "--preset", "toy", "--out", str(pretrained)]) == 0
     assert (policy / "model.safetensors").stat().st_mtime_ns == before
     assert "fine-tune with: --train.init-from" in capsys.readouterr().out
 
 
 def test_pretrain_refuses_another_configuration_in_its_folder(pretrained, capsys):
-    assert cli.main(["pretrain", "--preset", "smoke", "--out", str(pretrained), "--demos-per-task", "3"]) == 2
+    assert cli.main(["pretrain", "--preset", "toy", "--out", str(pretrained), "--demos-per-task", "3"]) == 2
     assert "demos_per_task: 2 -> 3" in capsys.readouterr().err
 
 
@@ -110,7 +110,7 @@ def test_pretrain_refuses_another_configuration_in_its_folder(pretrained, capsys
 )
 def test_pretrain_refuses_bad_input_before_any_work(tmp_path, capsys, args, message):
     out = tmp_path / "pt"
-    assert cli.main(["pretrain", "--preset", "smoke", "--out", str(out), *args]) == 2
+    assert cli.main(["pretrain", "--preset", "toy", "--out", str(out), *args]) == 2
     assert message in capsys.readouterr().err
     assert not out.exists()
 
@@ -189,7 +189,7 @@ def test_a_run_saved_before_extra_instructions_compares_as_one_without_them():
 @pytest.mark.parametrize("command", ["experiment", "pretrain"])
 def test_experiment_and_pretrain_refuse_a_missing_init_folder_before_any_work(tmp_path, capsys, command):
     out = tmp_path / "out"
-    preset = ["--preset", "smoke"] if command == "pretrain" else []
+    preset = ["--preset", "toy"] if command == "pretrain" else []
     assert cli.main([command, *preset, "--out", str(out), "--train.init-from", str(tmp_path / "none")]) == 2
     assert f"--train.init-from {tmp_path / 'none'}: no such folder" in capsys.readouterr().err
     assert not out.exists()
@@ -197,7 +197,7 @@ def test_experiment_and_pretrain_refuse_a_missing_init_folder_before_any_work(tm
 
 def test_a_second_pretraining_reproduces_the_data_and_the_weights_bit_for_bit(pretrained, tmp_path):
     again = tmp_path / "pt"
-    assert cli.main(["pretrain", "--preset", "smoke", "--out", str(again)]) == 0
+    assert cli.main(["pretrain", "--preset", "toy", "--out", str(again)]) == 0
     first, second = (json.loads((d / "manifest.json").read_text()) for d in (pretrained, again))
     assert second["data"]["fingerprint"] == first["data"]["fingerprint"]
     assert second["policy"]["model_sha256"] == first["policy"]["model_sha256"]

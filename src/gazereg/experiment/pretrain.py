@@ -3,7 +3,7 @@ and resumable, to fine-tune on held-out tasks (`gazereg train --init-from`, `gaz
 --train.init-from`).
 
     gazereg pretrain                                  # ML45's 45 training tasks (preset ml45; hours on 2 cores)
-    gazereg pretrain --preset smoke --out runs/pt     # every stage at toy size, seconds
+    gazereg pretrain --preset toy --out runs/pt     # every stage at toy size, seconds
     gazereg pretrain --train.stop-at 10000            # pause training with a checkpoint; rerun to continue
 
 Stages (each writes into `out/` and a marker `out/stages/<name>.json` with its wall time over every attempt

@@ -1,6 +1,6 @@
-"""`gazereg pretrain`'s configuration, its presets (`ml45`, `smoke`) and what it checks before any work.
+"""`gazereg pretrain`'s configuration, its presets (`ml45`, `toy`) and what it checks before any work.
 
-    cfg = PRESETS["smoke"]()                  # 2 tasks, a tiny policy, seconds
+    cfg = PRESETS["toy"]()                  # 2 tasks, a tiny policy, seconds
     preflight(cfg)                            # tasks, held-out tasks, instructions vs the tokenizer
     finetune_flags(cfg.train.policy)          # ["--train.policy.dim", "192", ...]: the architecture to fine-tune
 
@@ -37,7 +37,7 @@ from gazereg.runtime.config import Validated, option, require_entries, require_n
 from gazereg.runtime.errors import UsageError
 from gazereg.training.config import EXECUTION_KEYS as TRAIN_EXECUTION_KEYS
 from gazereg.training.config import OptimConfig, TrainConfig
-from gazereg.training.config import smoke as smoke_train
+from gazereg.training.config import ci as ci_train
 from gazereg.training.config import tuned as tuned_train
 from gazereg.training.init_from import read_init
 
@@ -200,10 +200,10 @@ def ml45() -> PretrainConfig:
     return PretrainConfig(out=Path("runs/pretrain"), tasks=ml45_split().train, train=ml45_train())
 
 
-def smoke() -> PretrainConfig:
+def toy() -> PretrainConfig:
     """Every stage at toy size (tests/test_pretrain.py): 2 tasks, 2 demonstrations each at 48 px, a 2-layer
     64-wide policy trained 6 steps, 1 evaluation episode of 10 steps per task."""
-    t = smoke_train()
+    t = ci_train()
     train = replace(
         t,
         steps=6,
@@ -217,7 +217,7 @@ def smoke() -> PretrainConfig:
         optim=OptimConfig(lr=1e-3, warmup_steps=2),
     )
     return PretrainConfig(
-        out=Path("runs/pretrain_smoke"),
+        out=Path("runs/pretrain_toy"),
         tasks=("reach-v3", "button-press-topdown-v3"),
         image_size=48,
         demos_per_task=2,
@@ -231,5 +231,5 @@ def smoke() -> PretrainConfig:
     )
 
 
-PRESETS = {"ml45": ml45, "smoke": smoke}
+PRESETS = {"ml45": ml45, "toy": toy}
 """`gazereg pretrain --preset NAME`; the first is the default"""
