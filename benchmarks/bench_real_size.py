@@ -642,7 +642,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: torch's)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=None, help="JSON path (default: stdout only)")
+    ap.add_argument(
+        "--markdown", type=Path, default=None, metavar="JSON",
+        help="measure nothing: print the markdown table of a JSON this script wrote (for docs)",
+    )  # fmt: skip
     args = ap.parse_args(argv)
+    if args.markdown is not None and not args.markdown.is_file():
+        ap.error(f"--markdown {args.markdown}: no such file")
     names = [c.strip() for c in args.configs.split(",") if c.strip()]
     bad = [c for c in names if c not in CONFIGS]
     if bad or not names:
@@ -709,6 +715,9 @@ def measure(name: str, args: argparse.Namespace, workdir: Path, bf16: bool) -> d
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    if args.markdown is not None:
+        print(markdown_table(json.loads(args.markdown.read_text()), args.markdown.name))
+        return 0
     try:
         import lerobot  # noqa: F401
         import lerobot_policy_gazereg  # noqa: F401
@@ -798,6 +807,45 @@ def summary_table(result: dict[str, Any]) -> str:
                 f"{q['step_memory']:7.3f} {grid:>5}"
             )
     return "\n".join(rows)
+
+
+def markdown_table(result: dict[str, Any], source: str) -> str:
+    """The `summary_table` facts as a markdown table under a line naming the machine, the settings and `source`
+    (the JSON file), for docs; medians of `settings.rounds` interleaved rounds."""
+    m, s = result["machine"], result["settings"]
+    gpu = (m.get("gpu") or {}).get("name")
+    where = f"{gpu} (CUDA {m['gpu']['cuda']})" if gpu else f"{m['cpu_model']}, {m.get('cores')} cores"
+    lines = [
+        f"`{source}`: {where}, {m['dtype']}, torch {m['versions']['torch']}, lerobot {m['versions']['lerobot']}, "
+        f"transformers {m['versions']['transformers']}; batch {s['batch']}, {s['rounds']} interleaved rounds "
+        f"(medians), gaze weight {s['gaze_weight']}"
+        + (f", Gemma depth {s['pi_depth']}" if s.get("pi_depth") else "")
+        + (", expert only" if s.get("train_expert_only") else "")
+        + ".",
+        "",
+        "| config | parameters (with grad) | checkpointing | step s gaze / plain | time x | peak GiB gaze / plain "
+        "| peak x | step memory x | token grid |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, e in result["configs"].items():
+        if "runs" not in e:
+            lines.append(f"| {name} | | | {e.get('error') or e.get('skipped', 'not run')} | | | | | |")
+            continue
+        md = e["model"]
+        params = f"{md['params_total'] / 1e6:.0f}M ({md.get('params_with_grad', 0) / 1e6:.0f}M)"
+        cams = e["grid_check"]["cameras"]
+        grid = ", ".join(f"{c['tokens_seen']}" for c in cams.values()) + (
+            " ok" if e["grid_check"]["ok"] else " FAIL"
+        )
+        for r in e["runs"]:
+            g, p, q = r["gaze"], r["plain"], r["ratio"]
+            lines.append(
+                f"| {name} | {params} | {'on' if r['gradient_checkpointing'] else 'off'} | "
+                f"{g['step_s_median']:.3f} / {p['step_s_median']:.3f} | {q['time']:.3f} | "
+                f"{g['peak_bytes'] / 2**30:.2f} / {p['peak_bytes'] / 2**30:.2f} | {q['peak_memory']:.3f} | "
+                f"{q['step_memory']:.3f} | {grid} |"
+            )
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

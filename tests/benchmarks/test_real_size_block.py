@@ -1,0 +1,42 @@
+"""The real-size benchmark's block in docs/speed.md is what `bench_real_size.py --markdown` renders from the
+committed JSON (so its numbers come from the file, not typed), and the markdown mode needs no LeRobot."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+JSON = ROOT / "docs" / "benchmarks" / "real_size_h200.json"
+
+
+def _block(page: Path, marker: str) -> str:
+    text = page.read_text()
+    return text.split(f"<!-- {marker}:start -->\n", 1)[1].split(f"<!-- {marker}:end -->", 1)[0]
+
+
+def test_the_speed_page_block_is_rendered_from_the_committed_json():
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "bench_real_size.py"), "--markdown", str(JSON)],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    assert _block(ROOT / "docs" / "speed.md", "real-size-h200") == out
+    assert "| smolvla |" in out and "| pi0 |" in out and "| pi05 |" in out
+
+
+def test_markdown_of_a_missing_file_is_one_line_and_exit_2(tmp_path):
+    r = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "benchmarks" / "bench_real_size.py"),
+            "--markdown",
+            str(tmp_path / "x.json"),
+        ],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 2
+    assert r.stderr.strip().count("\n") == 0 and "x.json" in r.stderr
