@@ -13,8 +13,9 @@ from gazereg.runtime.hardware import PRECISION_NAMES, NumericsKey
 def numerics_text(machine: dict[str, Any]) -> str:
     """How the report's runs computed, in one phrase (report.json's "machine", `tables.machine_summary`):
     `NumericsKey.describe` with the CPU model where the runs trained in one recorded precision; otherwise what
-    is known (precisions that differ between runs, or none recorded) with torch's CPU capability; "numerics
-    not recorded" for a report made before the machine record named them."""
+    is known (precisions that differ between runs, or none recorded: a report pooled from archives) and the CPU
+    the report itself was made on, said to be that; "numerics not recorded" for a report made before the
+    machine record named them."""
     if machine.get("numerics"):
         return NumericsKey.from_dict(machine["numerics"]).describe(machine.get("cpu_model"))
     if "cpu_capability" not in machine:
@@ -27,7 +28,10 @@ def numerics_text(machine: dict[str, Any]) -> str:
     else:
         precision = "training precision not recorded"
     isa = ", ".join(machine["bf16_isa"]) or "none"
-    return f"{precision}; torch CPU capability {machine['cpu_capability']}, bf16 instructions {isa}"
+    return (
+        f"{precision}; this report was made on a CPU with torch capability {machine['cpu_capability']} and "
+        f"bf16 instructions {isa}, which need not be the one that trained"
+    )
 
 
 def demos_text(demos: dict[str, Any]) -> str:
