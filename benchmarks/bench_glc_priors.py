@@ -24,7 +24,7 @@ from pathlib import Path
 import torch
 from _timing import machine_info
 
-from gazereg.gaze.aggregation import AggregationConfig, aggregate
+from gazereg.aggregation import AggregationConfig, aggregate
 from gazereg.gaze.glc.data import synthetic_gaze_episode
 from gazereg.gaze.sources.glc import GLCGaze, GLCParams
 

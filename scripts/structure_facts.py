@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("runtime",),
-    ("losses", "patches", "metrics", "attention", "gaze.heatmaps", "gaze.aggregation"),
+    ("losses", "patches", "metrics", "heatmaps", "aggregation", "attention"),
     ("data",),
     ("gaze",),
     ("viz",),
@@ -116,8 +116,8 @@ def loops(graph: dict[str, set[str]]) -> list[list[str]]:
 
 
 def top_of(module: str) -> str:
-    """The unit of LAYERS a module belongs to: the longest entry its dotted path starts with (the core modules
-    `gaze.heatmaps` and `gaze.aggregation` live in the gaze package), else its first-level part."""
+    """The unit of LAYERS a module belongs to: the longest entry its dotted path starts with, else its
+    first-level part."""
     rel = module.split(".", 1)[1] if "." in module else "__init__"
     units = [u for names in LAYERS for u in names if rel == u or rel.startswith(u + ".")]
     return max(units, key=len) if units else rel.split(".")[0]

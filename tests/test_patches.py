@@ -3,7 +3,7 @@ import torch
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from gazereg.gaze.heatmaps import heatmaps_from_points
+from gazereg.heatmaps import heatmaps_from_points
 from gazereg.patches import PatchGeometry, grid_to_image, patch_distribution, patch_distributions
 
 

@@ -20,10 +20,10 @@ HEAT, VALID = "gaze.front.heatmap", "gaze.front.valid"
 def gaze_version(tmp_path_factory, dataset_root):
     """(store, new data set root): the fixture's episodes 0 and 1 imported, `recorded` priors (16x16, two
     frames aggregated), written into a new version; episode 2 has no prior (valid = false)."""
+    from gazereg.aggregation import AggregationConfig
     from gazereg.data.formats.lerobot_v3 import LeRobotImportConfig, import_lerobot
     from gazereg.data.formats.lerobot_v3.gaze_feature import write_gaze_dataset
     from gazereg.data.store import EpisodeStore
-    from gazereg.gaze.aggregation import AggregationConfig
     from gazereg.gaze.priors import PriorsConfig, make_priors
 
     tmp = tmp_path_factory.mktemp("gaze_feature")

@@ -14,9 +14,9 @@ from typing import Any
 from gazereg.runtime.version import __version__
 
 _EXPORTS = {
-    "heatmaps_from_points": "gazereg.gaze.heatmaps",
-    "AggregationConfig": "gazereg.gaze.aggregation",
-    "aggregate": "gazereg.gaze.aggregation",
+    "heatmaps_from_points": "gazereg.heatmaps",
+    "AggregationConfig": "gazereg.aggregation",
+    "aggregate": "gazereg.aggregation",
     "PatchGeometry": "gazereg.patches",
     "patch_distribution": "gazereg.patches",
     "GazeLossConfig": "gazereg.losses",

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from gazereg.gaze.heatmaps import as_tensor, check_heatmaps
+from gazereg.heatmaps import as_tensor, check_heatmaps
 
 Orientation = Literal["none", "rot180", "hflip", "vflip"]
 

@@ -237,8 +237,8 @@ def test_cli(tmp_path, capsys):
 
 def test_export_priors_of_hdf5_episodes_stays_upright(tmp_path):
     pytest.importorskip("pyarrow")
+    from gazereg.aggregation import AggregationConfig
     from gazereg.data.formats.lerobot_v3.export import export_priors_lerobot, read_priors_lerobot
-    from gazereg.gaze.aggregation import AggregationConfig
     from gazereg.gaze.priors import PriorsConfig, make_priors
 
     src = write_libero(tmp_path / "put_the_bowl_on_the_plate_demo.hdf5", lengths=(4, 5), gaze=True)

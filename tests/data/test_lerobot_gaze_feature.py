@@ -13,12 +13,12 @@ pytest.importorskip("av")
 pa = pytest.importorskip("pyarrow")
 pq = pytest.importorskip("pyarrow.parquet")
 
+from gazereg.aggregation import AggregationConfig  # noqa: E402
 from gazereg.cli import main as gazereg_main  # noqa: E402
 from gazereg.data import cli as data_cli  # noqa: E402
 from gazereg.data.formats.lerobot_v3 import LeRobotImportConfig, LeRobotV3Dataset, import_lerobot  # noqa: E402
 from gazereg.data.formats.lerobot_v3.gaze_feature import resize_maps, write_gaze_dataset  # noqa: E402
 from gazereg.data.store import EpisodeStore  # noqa: E402
-from gazereg.gaze.aggregation import AggregationConfig  # noqa: E402
 from gazereg.gaze.priors import PriorsConfig, make_priors  # noqa: E402
 from gazereg.runtime.errors import UsageError  # noqa: E402
 

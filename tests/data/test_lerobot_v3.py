@@ -12,6 +12,7 @@ pytest.importorskip("av")
 pa = pytest.importorskip("pyarrow")
 pq = pytest.importorskip("pyarrow.parquet")
 
+from gazereg.aggregation import AggregationConfig  # noqa: E402
 from gazereg.cli import main as gazereg_main  # noqa: E402
 from gazereg.data import cli as data_cli  # noqa: E402
 from gazereg.data.errors import DataExportError, DataImportError  # noqa: E402
@@ -20,7 +21,6 @@ from gazereg.data.formats.lerobot_v3 import LeRobotImportConfig, LeRobotV3Datase
 from gazereg.data.formats.lerobot_v3.export import export_priors_lerobot, read_priors_lerobot  # noqa: E402
 from gazereg.data.formats.video import VideoFile  # noqa: E402
 from gazereg.data.store import EpisodeStore  # noqa: E402
-from gazereg.gaze.aggregation import AggregationConfig  # noqa: E402
 from gazereg.gaze.priors import PriorsConfig, make_priors  # noqa: E402
 from gazereg.runtime.errors import UsageError  # noqa: E402
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from gazereg.gaze.heatmaps import heatmaps_from_points
+from gazereg.heatmaps import heatmaps_from_points
 from gazereg.patches import PatchGeometry, patch_distribution
 
 from .errors import GazeUsageError

@@ -15,11 +15,11 @@ import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from gazereg.aggregation import AggregationConfig
 from gazereg.envs.base import SimulatorName, check_simulator
 from gazereg.envs.metaworld.difficulty import draw_tasks
 from gazereg.evaluation.config import ROBUSTNESS_CONDITIONS, EvalConfig
 from gazereg.evaluation.config import presets as eval_presets
-from gazereg.gaze.aggregation import AggregationConfig
 from gazereg.gaze.sources.glc import GLCParams
 from gazereg.gaze.sources.visuomotor import VisuomotorParams
 from gazereg.runtime.config import Validated, option, require_entries, require_number

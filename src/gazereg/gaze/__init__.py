@@ -1,1 +1,2 @@
-"""Gaze: heatmaps from points, temporal aggregation, gaze sources and the prior pipeline."""
+"""Gaze: gaze sources, the prior pipeline and the GLC video gaze estimator (above data/; heatmaps from points
+and their temporal aggregation are core modules, `gazereg.heatmaps` and `gazereg.aggregation`)."""

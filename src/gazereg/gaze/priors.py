@@ -34,8 +34,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from gazereg.aggregation import AggregationConfig, aggregate
 from gazereg.data.store import PRIOR_MANIFEST, EpisodeStore
-from gazereg.gaze.aggregation import AggregationConfig, aggregate
 from gazereg.gaze.sources import (
     GazeSource,
     GazeSourceParams,

@@ -2,7 +2,7 @@
 
 The same maps are the training targets (`gazereg.training.glc`) and, binarised, the ground truth of the
 GLC paper's metrics (`gazereg.gaze.glc.metrics`). They follow the official code, not
-`gazereg.gaze.heatmaps.heatmaps_from_points` (the priors' maps): the centre is the pixel
+`gazereg.heatmaps.heatmaps_from_points` (the priors' maps): the centre is the pixel
 `(round(v*h), round(u*w))` rather than a continuous position over cell centres, the Gaussian is cut to a
 19-pixel window at 64 px, and a missing point gives a uniform map rather than an all-zero one.
 """

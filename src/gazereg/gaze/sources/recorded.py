@@ -12,9 +12,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from gazereg.data.store import Episode
-from gazereg.gaze.heatmaps import heatmaps_from_points
 from gazereg.gaze.sources import register_gaze_source
 from gazereg.gaze.sources.params import GazeSourceParams
+from gazereg.heatmaps import heatmaps_from_points
 from gazereg.runtime.errors import UsageError
 
 

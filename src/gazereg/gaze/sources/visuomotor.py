@@ -25,7 +25,7 @@ probability `missing_rate`; frames whose gaze point is outside the image are inv
 deterministic per (seed, episode seed, task), and the same for every camera of an episode.
 
 Heatmaps: a Gaussian of std `sigma` (a fraction of the map width; GLC's ground truth is 3.2 cells of 64, 0.05)
-around the gaze point, via `gazereg.gaze.heatmaps.heatmaps_from_points`.
+around the gaze point, via `gazereg.heatmaps.heatmaps_from_points`.
 """
 
 from __future__ import annotations
@@ -37,9 +37,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from gazereg.data.store import Episode
-from gazereg.gaze.heatmaps import heatmaps_from_points
 from gazereg.gaze.sources import register_gaze_source
 from gazereg.gaze.sources.params import GazeSourceParams
+from gazereg.heatmaps import heatmaps_from_points
 from gazereg.runtime.errors import UsageError
 
 # Tasks where the hand has no object to act on: the eyes go straight to the goal.

@@ -3,8 +3,8 @@ import torch
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gazereg.gaze.aggregation import AggregationConfig, aggregate
-from gazereg.gaze.heatmaps import heatmaps_from_points
+from gazereg.aggregation import AggregationConfig, aggregate
+from gazereg.heatmaps import heatmaps_from_points
 
 configs = st.builds(
     AggregationConfig,

@@ -15,7 +15,7 @@ from typing import ClassVar, Literal, get_args
 import torch
 from torch import Tensor
 
-from gazereg.gaze.heatmaps import as_tensor, check_heatmaps
+from gazereg.heatmaps import as_tensor, check_heatmaps
 from gazereg.runtime.config import Validated, require_choice, require_number
 
 Kernel = Literal["uniform", "gaussian", "exponential"]

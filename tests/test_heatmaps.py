@@ -4,7 +4,7 @@ import torch
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gazereg.gaze.heatmaps import check_heatmaps, heatmaps_from_points
+from gazereg.heatmaps import check_heatmaps, heatmaps_from_points
 
 unit = st.floats(0, 1, allow_nan=False)
 
