@@ -14,7 +14,7 @@ import importlib
 from typing import Any
 
 _EXPORTS = {
-    "Env": "gazereg.envs.base",
+    "Env": "gazereg.envs.interface",
     "Simulator": "gazereg.envs.base",
     "env_class": "gazereg.envs.base",
     "make_collector": "gazereg.envs.base",

@@ -17,7 +17,7 @@ from collections import OrderedDict
 from collections.abc import Callable, Hashable
 from typing import Generic, TypeVar
 
-from gazereg.envs.base import Env
+from gazereg.envs.interface import Env
 
 WORKER_ENVS = 4
 """environments one worker process keeps open"""

@@ -52,7 +52,7 @@ from pathlib import Path
 from typing import Any
 
 from gazereg.data.store import EpisodeStore
-from gazereg.envs.base import Collector, Env, make_collector
+from gazereg.envs.base import make_collector
 from gazereg.envs.cache import EnvCache
 from gazereg.envs.collect_config import (
     FINGERPRINT_FIELDS,
@@ -64,6 +64,7 @@ from gazereg.envs.collect_config import (
     fingerprint,
     resolve,
 )
+from gazereg.envs.interface import Collector, Env
 from gazereg.runtime.config import parse, save_config
 from gazereg.runtime.io import atomic_write_json, sweep_stale_temps
 from gazereg.runtime.pool import ResumeLog, WorkerPool, available_cores

@@ -1,9 +1,9 @@
 """Recording a scripted rollout into an `Episode`: the simulator-independent loop.
 
-    rec = record_rollout(env, act, seed=3, max_steps=200)    # any `gazereg.envs.base.Env`
+    rec = record_rollout(env, act, seed=3, max_steps=200)    # any `gazereg.envs.interface.Env`
     ep = rec.episode(task, instruction, meta)
 
-`record_rollout` drives an environment with the `gazereg.envs.base.Env` API (MetaWorldEnv, LiberoEnv):
+`record_rollout` drives an environment with the `gazereg.envs.interface.Env` API (MetaWorldEnv, LiberoEnv):
 `reset(seed=)`, `step(action)`, `cameras`, `project(points, camera)`, and an `info` dict carrying `contact`,
 `grasp`, `success` and world positions `<name>_pos` (obj, obj2, goal, hand).
 Per frame t it keeps the observation before action t, and after the loop the extras
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from gazereg.data.store import Episode
-from gazereg.envs.base import Env
+from gazereg.envs.interface import Env
 
 KEY_POINTS = ("obj", "obj2", "goal", "hand")
 

@@ -1,4 +1,4 @@
-"""The gymnasium spaces every `gazereg.envs.base.Env` declares (this module imports gymnasium)."""
+"""The gymnasium spaces every `gazereg.envs.interface.Env` declares (this module imports gymnasium)."""
 
 from __future__ import annotations
 

@@ -37,8 +37,9 @@ import torch
 
 from gazereg.attention import AttentionProbe
 from gazereg.attention.probe import ProbeSpec
-from gazereg.envs.base import Env, env_class, simulator
+from gazereg.envs.base import env_class, simulator
 from gazereg.envs.cache import WORKER_ENVS, EnvCache
+from gazereg.envs.interface import Env
 from gazereg.envs.perturbations import parse_perturbation
 from gazereg.evaluation.config import EvalConfig, check_tasks, parse_checkpoints, presets
 from gazereg.evaluation.summary import format_table, summarize

@@ -67,8 +67,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from gazereg.envs.base import check_cameras, check_render_mode, image_hw
 from gazereg.envs.camera import CameraGeometry, camera_geometry
+from gazereg.envs.interface import check_cameras, check_render_mode, image_hw
 from gazereg.envs.libero.render import (
     CAMERA_ALIASES,
     COLLISION_GROUP,
