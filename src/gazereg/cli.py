@@ -11,7 +11,7 @@ from __future__ import annotations
 import sys
 
 from gazereg.runtime.errors import report_errors, split_verbose
-from gazereg.runtime.subcommands import Entry, Subcommands
+from gazereg.runtime.subcommands import Entry, Subcommands, run_entry_logged
 from gazereg.runtime.version import __version__
 
 # name -> ("module:function", one-line help). Only subcommands whose module is installed are offered.
@@ -44,13 +44,32 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "compare two experiment runs on the setups both evaluated (paired tests per arm and condition)",
     ),
     "presets": ("gazereg.experiment.presets:main", "list every preset of every kind, one line each"),
-    "glc": ("gazereg.gaze.glc.cli:main", "train / evaluate the GLC video gaze estimator"),
+    "glc": ("gazereg.cli:glc_main", "train / evaluate the GLC video gaze estimator"),
     "import": (
         "gazereg.data.cli:main",
         "import LeRobot v3 or HDF5 demonstrations into an episode store",
     ),
     "viz": ("gazereg.viz.cli:main", "draw episodes with their gaze and attention"),
 }
+
+GLC = Subcommands(
+    prog="gazereg glc",
+    synopsis="<train|eval> [--preset NAME] [options]",
+    commands={
+        "train": ("gazereg.training.glc_cli:main", "train / fine-tune GLC on an episode store's gaze"),
+        "eval": (
+            "gazereg.gaze.glc.cli:eval_main",
+            "GLC metrics on held-out episodes vs centre-prior and uniform baselines",
+        ),
+    },
+    footer=(
+        "`train` (`gazereg.training.glc_cli`) learns from any episodes that carry per-frame gaze points and "
+        "writes\n`<out>/final/`, a folder the `glc` gaze source loads (`--source-params checkpoint=<out>/final`)."
+    ),
+    noun="subcommand",
+)
+"""`gazereg glc`: its train entry lives in training/ and its eval entry in gaze/glc/, so the table that names
+both sits here, above both layers"""
 
 COMMANDS = Subcommands(
     prog="gazereg",
@@ -59,6 +78,11 @@ COMMANDS = Subcommands(
     heading="commands:",
     footer="Run `gazereg <command> --help` for a command's options.",
 )
+
+
+def glc_main(argv: list[str] | None = None) -> int:
+    """`gazereg glc <train|eval> ...`, with INFO logging to stderr."""
+    return GLC.main(argv, run=run_entry_logged)
 
 
 def main(argv: list[str] | None = None) -> int:

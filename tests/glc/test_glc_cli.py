@@ -9,7 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from gazereg.gaze.glc.cli import GLCEvalCommand, main
+from gazereg.cli import glc_main
+from gazereg.gaze.glc.cli import GLCEvalCommand
 from gazereg.gaze.glc.data import (
     StoreClipDataset,
     episode_gaze_points,
@@ -74,7 +75,7 @@ def test_train_and_eval_commands_write_their_outputs(store, tmp_path, capsys):
         "--optim.warmup-steps",
         "1",
     ]
-    assert main(args) == 0
+    assert glc_main(args) == 0
     for name in (
         "final/model.safetensors",
         "final/config.json",
@@ -92,7 +93,7 @@ def test_train_and_eval_commands_write_their_outputs(store, tmp_path, capsys):
 
     report = tmp_path / "eval2.json"
     assert (
-        main(
+        glc_main(
             [
                 "eval",
                 "--store",
@@ -117,12 +118,12 @@ def test_train_and_eval_commands_write_their_outputs(store, tmp_path, capsys):
 
 
 def test_cli_usage_and_errors(tmp_path, store, capsys):
-    assert main([]) == 0
+    assert glc_main([]) == 0
     assert capsys.readouterr().out.startswith("usage: gazereg glc <train|eval> [--preset NAME] [options]\n")
-    assert main(["bogus"]) == 2
+    assert glc_main(["bogus"]) == 2
     assert "gazereg glc: unknown subcommand 'bogus'" in capsys.readouterr().err
     with pytest.raises(FileNotFoundError):
-        main(["eval", "--store", str(store.root), "--checkpoint", str(tmp_path / "missing")])
+        glc_main(["eval", "--store", str(store.root), "--checkpoint", str(tmp_path / "missing")])
 
 
 def test_gaze_points_from_a_trace_or_from_map_peaks(store):

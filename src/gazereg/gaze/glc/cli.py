@@ -1,11 +1,8 @@
-"""`gazereg glc`: train and evaluate the GLC video gaze estimator on an episode store.
+"""`gazereg glc eval`: evaluate the GLC video gaze estimator on an episode store.
 
-    gazereg glc train --store data/demos --camera corner2 --gaze-source visuomotor --out runs/glc
-    gazereg glc train --preset finetune-official --init GLC_ego4d.pyth ...          (fine-tune the official model)
     gazereg glc eval  --store data/demos --checkpoint runs/glc
 
-`train` (`gazereg.training.glc_cli`) learns from any episodes that carry per-frame gaze points and writes
-`<out>/final/`, a folder the `glc` gaze source loads (`--source-params checkpoint=<out>/final`).
+`gazereg glc` (the table in `gazereg.cli`) dispatches `train` to `gazereg.training.glc_cli` and `eval` here.
 
 `eval` runs the `glc` gaze source (the same code the priors use) on the held-out episodes and reports the
 GLC paper's metrics (F1 / recall / precision at the best threshold, AUC) next to a centre prior fitted on
@@ -34,7 +31,6 @@ from gazereg.gaze.sources.glc import CONFIGS, GLCConfigName, GLCMode, GLCParams
 from gazereg.runtime.config import Validated, option, parse, require_choice, require_number
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_json
-from gazereg.runtime.subcommands import Subcommands, run_entry_logged
 
 
 @dataclass(frozen=True)
@@ -143,26 +139,3 @@ def eval_command(cfg: GLCEvalCommand) -> dict[str, Any]:
 def eval_main(argv: list[str]) -> int:
     eval_command(parse({"default": GLCEvalCommand}, argv, prog="gazereg glc eval", description=__doc__ or ""))
     return 0
-
-
-COMMANDS = Subcommands(
-    prog="gazereg glc",
-    synopsis="<train|eval> [--preset NAME] [options]",
-    commands={
-        "train": ("gazereg.training.glc_cli:main", "train / fine-tune GLC on an episode store's gaze"),
-        "eval": (
-            "gazereg.gaze.glc.cli:eval_main",
-            "GLC metrics on held-out episodes vs centre-prior and uniform baselines",
-        ),
-    },
-    footer=(__doc__ or "").split("\n\n")[1],
-    noun="subcommand",
-)
-
-
-def main(argv: list[str] | None = None) -> int:
-    return COMMANDS.main(argv, run=run_entry_logged)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
