@@ -6,8 +6,11 @@ and the longest functions, and imports of the package's own modules hidden insid
     python scripts/structure_facts.py --json
 
 Every import counts, at module level or inside a function: a lazy import hides a loop, it does not remove
-it. `LAYERS` orders the packages from the core up; a module may import its own layer or lower ones.
-tests/test_structure.py asserts the facts this prints.
+it. So do string imports, which load a module by name when they run: `import_module("gazereg.x")` (or
+`importlib.import_module`) with a literal name, and a `"gazereg.x:function"` literal (a subcommand table, a
+registry entry); each is an edge of the graph like an import statement, reported by count. A string naming a
+module the package does not have is reported as dangling. `LAYERS` orders the packages from the core up; a
+module may import its own layer or lower ones. tests/test_structure.py asserts the facts this prints.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from __future__ import annotations
 import argparse
 import ast
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -49,8 +53,31 @@ def module_name(path: Path, src: Path) -> str:
     return ".".join(parts)
 
 
+def string_imports_of(tree: ast.AST, package: str) -> tuple[list[str], int]:
+    """(the package's own modules that `tree` loads by name, the number of `import_module` calls whose name is
+    computed): the literal argument of every `import_module("...")` call and the module part of every
+    `"package.module:function"` string literal. A computed name (`import_module(table[name])`) is counted, not
+    followed: the table's values are plain strings, indistinguishable from any other."""
+    entry = re.compile(rf"{re.escape(package)}(\.\w+)*:\w+(\.\w+)*")
+    found: list[str] = []
+    computed = 0
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and node.args:
+            func, arg = node.func, node.args[0]
+            name = func.id if isinstance(func, ast.Name) else getattr(func, "attr", None)
+            if name != "import_module":
+                continue
+            if isinstance(arg, ast.Constant) and isinstance(arg.value, str):
+                found += [arg.value] if arg.value.split(".")[0] == package else []
+            else:
+                computed += 1
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str) and entry.fullmatch(node.value):
+            found.append(node.value.partition(":")[0])
+    return found, computed
+
+
 def imports_of(tree: ast.AST, module: str, is_package: bool, package: str) -> list[tuple[str, bool]]:
-    """(imported module, inside a function?) for every import of the package's own modules."""
+    """(imported module, inside a function?) for every import statement of the package's own modules."""
     found: list[tuple[str, bool]] = []
 
     def visit(node: ast.AST, in_function: bool) -> None:
@@ -145,6 +172,9 @@ def analyse(src: Path, top: int = 8) -> dict[str, Any]:
     names = {module_name(f, src): f for f in files}
     graph: dict[str, set[str]] = {m: set() for m in names}
     inner_imports = 0
+    strings: list[str] = []
+    dangling: list[str] = []
+    computed: list[str] = []
     lengths: list[tuple[str, int]] = []
     sizes: list[tuple[str, int]] = []
     for mod, path in names.items():
@@ -158,6 +188,14 @@ def analyse(src: Path, top: int = 8) -> dict[str, Any]:
                 continue
             graph[mod].add(dep)
             inner_imports += inner
+        targets, n_computed = string_imports_of(tree, package)
+        computed += [mod] * n_computed
+        for target in targets:
+            if target not in names:
+                dangling.append(f"{mod} -> {target}")
+            elif target != mod:
+                graph[mod].add(target)
+                strings.append(f"{mod} -> {target}")
     back = []
     if package == "gazereg":
         for mod, deps in graph.items():
@@ -181,6 +219,10 @@ def analyse(src: Path, top: int = 8) -> dict[str, Any]:
         "back_arrows": sorted(back),
         "unlayered": sorted(m for m in names if package == "gazereg" and layer_of(m) is None),
         "function_level_imports": inner_imports,
+        "string_imports": len(strings),
+        "string_import_edges": sorted(set(strings)),
+        "dangling_string_imports": sorted(dangling),
+        "computed_string_imports": sorted(computed),
         "max_file_lines": MAX_FILE_LINES,
         "max_function_lines": MAX_FUNCTION_LINES,
         "largest_files": sizes[:top],
@@ -213,6 +255,13 @@ def main(argv: list[str] | None = None) -> int:
     if facts["unlayered"]:
         print(f"modules in no layer: {', '.join(facts['unlayered'])}")
     print(f"imports of the package's own modules inside functions: {facts['function_level_imports']}")
+    edges = facts["string_import_edges"]
+    print(f'string imports (import_module, "module:function"): {facts["string_imports"]}, {len(edges)} edges')
+    for arrow in facts["dangling_string_imports"]:
+        print(f"  - names no module: {arrow}")
+    computed = facts["computed_string_imports"]
+    where = ", ".join(sorted(set(computed)))
+    print(f"import_module calls with a computed name (counted, not followed): {len(computed)} ({where})")
     print(f"files over {facts['max_file_lines']} lines: {len(facts['long_files'])}; largest:")
     for path, n in facts["largest_files"]:
         print(f"  {n:5d}  {path}")

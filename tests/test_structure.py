@@ -1,6 +1,6 @@
-"""The package's shape: no import loops (lazy imports count), no import running back up the layers
-(scripts/structure_facts.py LAYERS), every module in a layer, the package's own modules imported at module level
-(lazy imports are for heavy third-party packages), files under 400 lines and functions under 60."""
+"""The package's shape: no import loops (lazy imports and string imports count), no import running back up the
+layers (scripts/structure_facts.py LAYERS), every module in a layer, the package's own modules imported at module
+level (lazy imports are for heavy third-party packages), files under 400 lines and functions under 60."""
 
 from __future__ import annotations
 
@@ -25,6 +25,24 @@ def test_no_import_loops_and_no_back_arrows():
     assert facts["unlayered"] == []
 
 
+def test_string_imports_are_edges_of_the_package_graph():
+    facts = load_facts().analyse(ROOT / "src" / "gazereg")
+    # the command tables name their modules as "module:function": those are edges the loops and layers see
+    assert facts["string_imports"] >= 20
+    assert "gazereg.cli -> gazereg.training.glc_cli" in facts["string_import_edges"]
+    assert "gazereg.envs.base -> gazereg.envs.metaworld.env" in facts["string_import_edges"]
+    assert facts["dangling_string_imports"] == []
+
+
+def test_the_core_sits_below_data_and_gaze():
+    facts = load_facts()
+    core = facts.layer_of("gazereg.patches")
+    for module in ("gazereg.heatmaps", "gazereg.aggregation", "gazereg.losses", "gazereg.metrics"):
+        assert facts.layer_of(module) == core, module
+    assert facts.layer_of("gazereg.data.dataset") > core
+    assert facts.layer_of("gazereg.gaze.priors") > facts.layer_of("gazereg.data.dataset")
+
+
 def test_own_imports_at_module_level_and_short_files_and_functions():
     facts = load_facts().analyse(ROOT / "src" / "gazereg")
     assert facts["function_level_imports"] == 0
@@ -43,3 +61,34 @@ def test_the_analysis_sees_loops_and_back_arrows(tmp_path):
     assert facts["loops"] == [["gazereg.data.store", "gazereg.losses"]]
     assert facts["back_arrows"] == ["gazereg.losses -> gazereg.data.store"]
     assert facts["function_level_imports"] == 1
+
+
+def test_the_analysis_sees_string_imports(tmp_path):
+    pkg = tmp_path / "gazereg"
+    (pkg / "data").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "data" / "__init__.py").write_text("")
+    (pkg / "losses.py").write_text(
+        '"""Mentions gazereg.data.store and `gazereg.data.store:X` in prose: no edge."""\n'
+        "import importlib\n"
+        "from importlib import import_module\n"
+        "TABLE = {'x': 'gazereg.data'}\n"
+        "def f(name):\n"
+        "    importlib.import_module(TABLE[name])\n"
+        "    return import_module('gazereg.data.store')\n"
+    )
+    (pkg / "data" / "store.py").write_text(
+        "COMMANDS = {'a': ('gazereg.losses:f', 'help'), 'b': ('gazereg.nowhere:main', 'help')}\n"
+        "OTHER = 'torch.nn:Module'\n"
+    )
+    facts = load_facts().analyse(pkg)
+    assert facts["loops"] == [["gazereg.data.store", "gazereg.losses"]]
+    assert facts["back_arrows"] == ["gazereg.losses -> gazereg.data.store"]
+    assert facts["string_imports"] == 2
+    assert facts["string_import_edges"] == [
+        "gazereg.data.store -> gazereg.losses",
+        "gazereg.losses -> gazereg.data.store",
+    ]
+    assert facts["dangling_string_imports"] == ["gazereg.data.store -> gazereg.nowhere"]
+    assert facts["computed_string_imports"] == ["gazereg.losses"]
+    assert facts["function_level_imports"] == 0
