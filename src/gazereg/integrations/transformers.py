@@ -1,4 +1,5 @@
-"""Gaze regularization for transformers' VLA and VLM classes: PI0, PaliGemma, Idefics3 / SmolVLM, Llava.
+"""Gaze regularization for transformers' VLA and VLM classes: PI0, PaliGemma, Idefics3 / SmolVLM, Llava, and
+models without an image token id whose patch embeddings sit at known positions (OpenVLA / Prismatic).
 
     reg = GazeRegularizer(model, {"front": camera_geometry(model, src_hw=(480, 640))}, layers=[1], weight=0.1)
     with reg:                                  # capture differentiable attention during this forward
@@ -9,8 +10,8 @@
 How the attention is captured: inside `with reg:` the regularized decoder's attention implementation is
 switched to a registered wrapper (`gazereg_sdpa` / `gazereg_eager`) that runs the original unchanged and
 hands the selected layers' queries and keys to a `gazereg.attention.AttentionProbe`
-(gazereg.integrations.transformers_capture). The per-family adapters (image tokens, patch grids, query rows)
-are in gazereg.integrations.transformers_families.
+(gazereg.integrations.transformers_capture). The per-family adapters (image tokens, patch grids) are in
+gazereg.integrations.transformers_families, the key and query positions in ...transformers_positions.
 
 Which attention
 ---------------
@@ -22,6 +23,12 @@ Which attention
 - Keys: the image tokens (`input_ids == config.image_token_id`), several images = several cameras in the order
   the prompt holds them, each block mapped row-major onto its camera's `PatchGeometry` grid (pixel-shuffled
   grids for Idefics3/SmolVLM; Llava's CLS token is skipped under `vision_feature_select_strategy="full"`).
+- Models without an image token id (OpenVLA: a Llama-2 decoder, the image's patch embeddings inserted after BOS):
+  the keys come from the family's `inserted_at` layout (`inserted_patch_family` + `register_family`, or
+  `family=`), or from the caller (`patch_positions=`: (N,), (B, N) or a callable(forward_kwargs) -> (B, N)
+  positions in the language model's sequence, N = the cameras' patch count, checked). With an inserted layout
+  "last" / "labels" are found on input_ids / labels and moved past the inserted patches, and every captured
+  layer's key axis must be input_ids' length + N (a wrong patch count is refused in one line).
 - Heads and queries are averaged per layer, layers averaged, then renormalised over each camera's patch keys.
 
 Gradient checkpointing: non-reentrant (`gradient_checkpointing_enable()`, transformers' default) works, the
@@ -60,9 +67,19 @@ from gazereg.integrations.transformers_capture import (
 from gazereg.integrations.transformers_families import (
     FAMILIES,
     ModelFamily,
-    QuerySpec,
+    attention_modules,
+    camera_geometries,
     camera_geometry,
     detect_family,
+    inserted_patch_family,
+    register_family,
+)
+from gazereg.integrations.transformers_positions import (
+    PositionSpec,
+    QuerySpec,
+    check_position_count,
+    given_positions,
+    has_gaze_target,
     image_positions,
     query_positions,
 )
@@ -76,6 +93,8 @@ __all__ = [
     "camera_geometry",
     "detect_family",
     "gaze_attention_name",
+    "inserted_patch_family",
+    "register_family",
     "register_gaze_attention",
 ]
 
@@ -96,6 +115,10 @@ class GazeRegularizer:
         divergence: "forward" KL(gaze || attention) (default), "reverse" or "js".
         target_mass: None (default): the divergence over each camera's renormalised patch attention; a number m
             in (0, 1]: the mass variant over patches + one non-image bin with target mass m on the image.
+        family: the model's `ModelFamily` (or a registered name) when it is not detected from the class.
+        patch_positions: the patch tokens' key positions in the regularized attention's sequence, given by the
+            caller instead of the family's layout: (N,) for every sample, (B, N), or a callable(forward_kwargs)
+            -> (B, N); N = the cameras' patch count (row-major per camera, in camera order), else a UsageError.
 
     Usage: `with reg: out = model(**batch)`, then `term, info = reg.loss(gaze, valid)`; `loss = out.loss + term`.
     """
@@ -110,10 +133,12 @@ class GazeRegularizer:
         divergence: Divergence = "forward",
         family: ModelFamily | str | None = None,
         target_mass: float | None = None,
+        patch_positions: PositionSpec | None = None,
     ):
         self.model = model
         self.family = FAMILIES[family] if isinstance(family, str) else (family or detect_family(model))
-        self.cameras = self._geometries(cameras)
+        self.patch_positions = patch_positions
+        self.cameras = camera_geometries(model, self.family, cameras)
         grid = self.family.grid_hw(model)
         for cam, geom in self.cameras.items():
             try:
@@ -123,7 +148,7 @@ class GazeRegularizer:
                     f"camera {cam!r}: {e} ({type(model).__name__} config gives {grid})"
                 ) from None
         self.config = self.family.attention_config(model)
-        self.modules = self._attention_modules()
+        self.modules = attention_modules(model, self.config, self.family.name)
         n = len(self.modules)
         self.layers = tuple(range(n // 2, n)) if layers is None else tuple(int(i) for i in layers)
         bad = [i for i in self.layers if not 0 <= i < n]
@@ -135,6 +160,9 @@ class GazeRegularizer:
         self.queries = self.family.default_queries if queries is None else queries
         self.divergence = divergence
         self.target_mass = None if target_mass is None else check_target_mass(target_mass)
+        if patch_positions is not None and not callable(patch_positions):
+            shape = torch.as_tensor(patch_positions).shape
+            check_position_count(int(shape[-1]) if len(shape) else 0, self.cameras, "patch_positions")
         self.skipped = 0  # forwards skipped since __enter__ (no image tokens: decoding / denoising steps)
         self.base = base_of(self.config._attn_implementation)
         register_gaze_attention(self.base)  # raises for unsupported implementations
@@ -146,56 +174,42 @@ class GazeRegularizer:
         self._cap_token = None
         self._capture: Capture | None = None
 
-    # ----- setup -----------------------------------------------------------------------------------------------
-    def _geometries(self, cameras: Any) -> dict[str, PatchGeometry]:
-        if cameras is None:
-            return {"image": camera_geometry(self.model)}
-        if isinstance(cameras, PatchGeometry):
-            return {"image": cameras}
-        if isinstance(cameras, Mapping):
-            out = dict(cameras)
-        else:
-            out = {str(c): camera_geometry(self.model) for c in cameras}
-        if not out:
-            raise ValueError("at least one camera is needed")
-        return out
-
-    def _attention_modules(self) -> list[nn.Module]:
-        found = {}
-        for mod in self.model.modules():
-            if (
-                getattr(mod, "config", None) is self.config
-                and hasattr(mod, "layer_idx")
-                and hasattr(mod, "q_proj")
-            ):
-                found[int(mod.layer_idx)] = mod
-        if not found:
-            raise RuntimeError(
-                f"found no attention modules of {type(self.model).__name__}'s {self.family.name} decoder"
-            )
-        if sorted(found) != list(range(len(found))):
-            raise RuntimeError(f"attention layer_idx values {sorted(found)} are not 0..{len(found) - 1}")
-        return [found[i] for i in range(len(found))]
-
     @property
     def n_layers(self) -> int:
         return len(self.modules)
 
     # ----- token bookkeeping ---------------------------------------------------------------------------------
     def image_positions(
-        self, input_ids: Tensor, pixel_attention_mask: Tensor | None = None
+        self,
+        input_ids: Tensor,
+        pixel_attention_mask: Tensor | None = None,
+        inputs: dict[str, Any] | None = None,
     ) -> tuple[Tensor, Tensor]:
         """Key positions of every camera's patch tokens.
 
         input_ids: (B, T). pixel_attention_mask: optional (B, n_cameras) bool of present camera slots (PI0).
+        inputs: the forward's keyword arguments (for a callable `patch_positions`).
         Returns keys (B, sum of n_patches over cameras) long, row-major per camera in camera order, and
         present (B, n_cameras) bool (False: that camera's image is absent from the sample; its keys are 0).
         """
+        if self.patch_positions is not None:
+            B = input_ids.shape[0]
+            keys = given_positions(
+                self.patch_positions, self.cameras, inputs or {"input_ids": input_ids}, B, input_ids.device
+            )
+            return keys, torch.ones(B, len(self.cameras), dtype=torch.bool)
         return image_positions(self.family, self.model, self.cameras, input_ids, pixel_attention_mask)
+
+    @property
+    def n_patches(self) -> int:
+        """N: the patch tokens of all cameras (the keys of the regularized attention)."""
+        return sum(g.n_patches for g in self.cameras.values())
 
     def query_positions(self, inputs: dict[str, Any], batch: int, device: torch.device) -> Tensor:
         """(B, n_queries) positions along the regularized attention's query axis for this forward."""
-        return query_positions(self.family, self.model, self.queries, inputs, batch, device)
+        return query_positions(
+            self.family, self.model, self.queries, inputs, batch, device, n_inserted=self.n_patches
+        )
 
     # ----- capture ---------------------------------------------------------------------------------------------
     def _attach(self, model: nn.Module, probe: AttentionProbe) -> list[Any]:
@@ -214,7 +228,7 @@ class GazeRegularizer:
         except TypeError:
             inputs = dict(kwargs)
         ids = inputs.get("input_ids")
-        if self._no_gaze_target(ids, inputs.get("past_key_values")):
+        if not has_gaze_target(self.family, self.model, self.patch_positions is not None, inputs):
             self.skipped += 1
             return
         if ids is None:
@@ -223,9 +237,10 @@ class GazeRegularizer:
                 f"(config.image_token_id); {type(module).__name__} was called without them"
             )
         pam = inputs.get("pixel_attention_mask") if self.family.name == "pi0" else None
-        keys, present = self.image_positions(ids, pam)
+        keys, present = self.image_positions(ids, pam, inputs)
         self.present = present.to(ids.device)
         queries = self.query_positions(inputs, ids.shape[0], ids.device)
+        inserted = self.family.inserted_at is not None and self.patch_positions is None
         spec = ProbeSpec(queries=slice(None), keys=keys, layers=self.layers)
         self._close_probe()
         probe = AttentionProbe(module, spec, adapter=self._attach)
@@ -236,16 +251,18 @@ class GazeRegularizer:
             layer_of={id(m): i for i, m in enumerate(self.modules)},
             queries=queries,
             grad=torch.is_grad_enabled(),
+            keys=keys,
+            key_len=ids.shape[1] + self.n_patches if inserted else None,
+            layout=(
+                "patch_positions"
+                if self.patch_positions is not None
+                else f"the {self.family.name} family's patches at {self.family.inserted_at}.."
+                f"{self.family.inserted_at + self.n_patches - 1}"
+                if inserted
+                else f"the {self.family.name} family's image tokens"
+            ),
         )
         self._cap_token = CAPTURE.set(self._capture)
-
-    def _no_gaze_target(self, ids: Tensor | None, past: Any) -> bool:
-        """True for a forward with nothing to regularize: no image tokens in input_ids (or no input_ids) and
-        either autograd off (inference, generate) or a non-empty cache (a decoding / denoising step)."""
-        if ids is not None and bool((ids == self.family.image_token_id(self.model)).any()):
-            return False
-        cached = past is not None and (not hasattr(past, "get_seq_length") or int(past.get_seq_length()) > 0)
-        return cached or not torch.is_grad_enabled()
 
     def _post_forward(self, module: nn.Module, args: tuple, kwargs: dict, output: Any) -> None:
         self._close_probe()

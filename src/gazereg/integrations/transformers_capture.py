@@ -24,6 +24,7 @@ import torch
 from torch import Tensor, nn
 
 from gazereg.attention.probe import AttentionProbe, own_saved_tensors, require_grad_mode
+from gazereg.runtime.errors import UsageError
 
 _PREFIX = "gazereg_"
 _SUPPORTED_BASES = ("sdpa", "eager")
@@ -39,6 +40,9 @@ class Capture:
     queries: Tensor  # (B, n_queries) positions along the attention's query axis
     active: bool = True  # False once the forward is over (gradient-checkpoint recomputation is ignored)
     grad: bool = False  # autograd was on when the forward started (the captured rows must carry a gradient)
+    keys: Tensor | None = None  # (B, N) key positions of the patch tokens (range-checked on every layer)
+    key_len: int | None = None  # the key axis' length the patch layout implies (inserted patches), or None
+    layout: str = ""  # what gave the key positions, for the error messages
 
 
 CAPTURE: ContextVar[Capture | None] = ContextVar("gazereg_hf_capture", default=None)
@@ -133,6 +137,17 @@ def _record(
         )
     scaling = kwargs.get("scaling", args[0] if args else None)
     B, H, Tq, d = query.shape
+    Tk = key.shape[2]
+    if cap.key_len is not None and Tk != cap.key_len:
+        raise UsageError(
+            f"{cap.layout}: layer {layer} attends over {Tk} keys, but input_ids plus the declared patch tokens "
+            f"make {cap.key_len}: the patch count or position does not match what the model inserts"
+        )
+    if cap.keys is not None and cap.keys.numel() and int(cap.keys.max()) >= Tk:
+        raise UsageError(
+            f"{cap.layout}: image token position {int(cap.keys.max())} is out of range for the {Tk} keys of "
+            f"layer {layer}"
+        )
     qpos = cap.queries.to(query.device)
     if qpos.shape[0] != B:
         raise ValueError(

@@ -1,9 +1,19 @@
-"""Per-family adapters of the transformers integration: PI0, PaliGemma, Idefics3 / SmolVLM, Llava.
+"""Per-family adapters of the transformers integration: PI0, PaliGemma, Idefics3 / SmolVLM, Llava, and models
+without an image token id (OpenVLA / Prismatic: patch embeddings inserted after BOS).
 
 A `ModelFamily` says where a family's regularized attention lives and how it lays out image tokens;
-`camera_geometry` turns that into a camera's `PatchGeometry`, and `image_positions` / `query_positions` locate
+`camera_geometry` turns that into a camera's `PatchGeometry`; gazereg.integrations.transformers_positions locates
 the attention's keys (every camera's patch tokens) and query rows in one forward (see
 gazereg.integrations.transformers, "Which attention").
+
+Two layouts of the image tokens:
+- placeholders: input_ids hold `image_token_id` once per patch token (the built-in families); the language
+  model's sequence is input_ids, and the keys are where the placeholders are.
+- inserted (`inserted_at` set, `image_token_id` None): input_ids hold no image tokens; the model inserts every
+  camera's patch embeddings, one block per camera in camera order, into the language model's sequence before
+  input position `inserted_at` (OpenVLA: 1, right after BOS). The keys are [inserted_at, inserted_at + N) (N =
+  the cameras' patch count), and an input position p >= inserted_at is p + N in the language model's sequence.
+  `inserted_patch_family` builds such a family and `register_family` makes `detect_family` find it.
 """
 
 from __future__ import annotations
@@ -12,36 +22,50 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import torch
-from torch import Tensor, nn
+from torch import nn
 
 from gazereg.patches import PatchGeometry
 
-QuerySpec = str | Sequence[int] | Tensor | Callable[[dict[str, Any]], Tensor]
-
 
 # ----- model families --------------------------------------------------------------------------------------
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ModelFamily:
     """How one family of transformers models lays out image tokens and where its regularized attention lives.
 
     attention_config(model): the config object read by the regularized attention modules (switched during capture).
-    image_token_id(model), tokens_per_image(model): the image placeholder id and how many it repeats per image.
+    image_token_id(model), tokens_per_image(model): the image placeholder id and how many it repeats per image;
+        None for a model without one (then `inserted_at` says where the patches are).
+    inserted_at: None for placeholder image tokens; an int: the model inserts the patch embeddings into the
+        language model's sequence before this input_ids position (OpenVLA: 1, after BOS), see the module docstring.
     skip_per_image(model): leading tokens of each image block that are not patches (Llava's CLS under 'full').
     vision(model): (image_size, patch_size, pixel_shuffle) of the vision tower's input.
     default_resize(model), default_pad: the family processor's resize ('stretch'/'fit'/'cover') and padding.
     default_queries: the query selection used when none is given.
+    builtin: a transformers class (matched only in `transformers.*` modules); registered families match any module.
     """
 
     name: str
     class_prefixes: tuple[str, ...]
     attention_config: Callable[[nn.Module], Any]
-    image_token_id: Callable[[nn.Module], int]
     vision: Callable[[nn.Module], tuple[int, int, int]]
     default_resize: str
     default_pad: str
     default_queries: str
+    image_token_id: Callable[[nn.Module], int] | None = None
+    inserted_at: int | None = None
     skip_per_image: Callable[[nn.Module], int] = lambda model: 0
+    builtin: bool = False
+
+    def __post_init__(self) -> None:
+        if (self.image_token_id is None) == (self.inserted_at is None):
+            raise ValueError(
+                f"model family {self.name!r}: give exactly one of image_token_id (placeholder image tokens) "
+                "and inserted_at (patch embeddings inserted at a fixed position)"
+            )
+        if self.inserted_at is not None and (isinstance(self.inserted_at, bool) or self.inserted_at < 0):
+            raise ValueError(
+                f"model family {self.name!r}: inserted_at must be an int >= 0, got {self.inserted_at!r}"
+            )
 
     def grid_hw(self, model: nn.Module) -> tuple[int, int]:
         size, patch, shuffle = self.vision(model)
@@ -72,6 +96,7 @@ FAMILIES: dict[str, ModelFamily] = {
         default_resize="fit",  # PI0ImageProcessor: fit inside 224x224, pad bottom/right (content at the top-left)
         default_pad="topleft",
         default_queries="actions",
+        builtin=True,
     ),
     "paligemma": ModelFamily(
         name="paligemma",
@@ -82,6 +107,7 @@ FAMILIES: dict[str, ModelFamily] = {
         default_resize="stretch",  # SigLIP processor: resize to (image_size, image_size)
         default_pad="centre",
         default_queries="last",
+        builtin=True,
     ),
     "idefics3": ModelFamily(
         name="idefics3",
@@ -92,6 +118,7 @@ FAMILIES: dict[str, ModelFamily] = {
         default_resize="stretch",  # do_image_splitting=False: the image is squared to max_image_size
         default_pad="centre",
         default_queries="last",
+        builtin=True,
     ),
     "llava": ModelFamily(
         name="llava",
@@ -103,24 +130,77 @@ FAMILIES: dict[str, ModelFamily] = {
         default_pad="centre",
         default_queries="last",
         skip_per_image=_llava_skip,
+        builtin=True,
     ),
 }
 
 
+def inserted_patch_family(
+    name: str,
+    attention_config: Callable[[nn.Module], Any],
+    image_size: int,
+    patch_size: int,
+    inserted_at: int = 1,
+    class_prefixes: Sequence[str] = (),
+    default_resize: str = "stretch",
+    default_queries: str = "labels",
+) -> ModelFamily:
+    """A family whose model has no image token id and inserts every camera's patch embeddings (one block of
+    (image_size // patch_size)^2 tokens per camera, in camera order) into the language model's sequence before
+    input_ids position `inserted_at` (OpenVLA / Prismatic: 1, after BOS).
+
+    attention_config(model): the language model's config (OpenVLA: `model.language_model.config`).
+    image_size, patch_size: pixels (OpenVLA: 224 and 14, 16x16 = 256 patches, SigLIP and DINOv2 features fused
+    per patch). class_prefixes: class names that `detect_family` maps to it once registered (`register_family`).
+    """
+    if not (isinstance(image_size, int) and isinstance(patch_size, int) and 0 < patch_size <= image_size):
+        raise ValueError(
+            f"image_size {image_size!r} and patch_size {patch_size!r} must be ints, 0 < patch <= image"
+        )
+    size, patch = int(image_size), int(patch_size)
+    return ModelFamily(
+        name=name,
+        class_prefixes=tuple(class_prefixes),
+        attention_config=attention_config,
+        vision=lambda m: (size, patch, 1),
+        default_resize=default_resize,
+        default_pad="centre",
+        default_queries=default_queries,
+        inserted_at=inserted_at,
+    )
+
+
+def register_family(family: ModelFamily) -> ModelFamily:
+    """Add a family to FAMILIES (by name), so `detect_family` and `GazeRegularizer(family=name)` find it.
+    A registered family matches its class prefixes in any module (e.g. trust_remote_code classes)."""
+    if family.name in FAMILIES and FAMILIES[family.name].builtin:
+        raise ValueError(
+            f"{family.name!r} is a built-in gaze model family; register yours under another name"
+        )
+    FAMILIES[family.name] = family
+    return family
+
+
 def detect_family(model: nn.Module) -> ModelFamily:
-    """The family of a transformers model, from its class name (or its base classes' names)."""
+    """The family of a model, from its class name (or its base classes' names): the built-in families match
+    transformers' own classes, registered ones (`register_family`) their class prefixes in any module."""
     for cls in type(model).__mro__:
         for fam in FAMILIES.values():
-            if cls.__name__.startswith(fam.class_prefixes) and cls.__module__.startswith("transformers."):
+            named = bool(fam.class_prefixes) and cls.__name__.startswith(fam.class_prefixes)
+            if named and (not fam.builtin or cls.__module__.startswith("transformers.")):
                 return fam
     known = sorted(p for f in FAMILIES.values() for p in f.class_prefixes)
-    raise TypeError(f"no gaze adapter for {type(model).__name__}; supported transformers families: {known}")
+    raise TypeError(
+        f"no gaze adapter for {type(model).__name__}; supported families: {known} (a model without an image "
+        "token id: register one with inserted_patch_family + register_family, or pass family=)"
+    )
 
 
 def camera_geometry(
     model: nn.Module,
     src_hw: tuple[int, int] | None = None,
     image_processor: Any = None,
+    family: ModelFamily | None = None,
     **overrides: Any,
 ) -> PatchGeometry:
     """The `PatchGeometry` of one camera as `model` sees it, from the model's config and its processor's facts.
@@ -129,9 +209,10 @@ def camera_geometry(
         and pads, Llava resizes and centre-crops); None assumes frames that are already square.
     image_processor: optional processor (or its image processor) whose resize/pad/crop settings override the
         family's defaults (Llava `do_pad` -> fit centred; Idefics3/SmolVLM `do_image_splitting` is refused).
+    family: the model's family when it is not detected from its class (default: `detect_family(model)`).
     overrides: any PatchGeometry field (e.g. orientation, crop_box) set explicitly.
     """
-    fam = detect_family(model)
+    fam = family or detect_family(model)
     size, patch, shuffle = fam.vision(model)
     resize, pad = fam.default_resize, fam.default_pad
     proc = getattr(image_processor, "image_processor", image_processor)
@@ -155,116 +236,29 @@ def camera_geometry(
     return PatchGeometry(**kwargs)
 
 
-# ----- token location ----------------------------------------------------------------------------------
-def image_positions(
-    family: ModelFamily,
-    model: nn.Module,
-    cameras: Mapping[str, PatchGeometry],
-    input_ids: Tensor,
-    pixel_attention_mask: Tensor | None = None,
-) -> tuple[Tensor, Tensor]:
-    """Key positions of every camera's patch tokens in `model`'s prompt (cameras in the prompt's image order).
-
-    input_ids: (B, T). pixel_attention_mask: optional (B, n_cameras) bool of present camera slots (PI0).
-    Returns keys (B, sum of n_patches over cameras) long, row-major per camera in camera order, and
-    present (B, n_cameras) bool (False: that camera's image is absent from the sample; its keys are 0).
-    """
-    tid = family.image_token_id(model)
-    tpi = family.tokens_per_image(model)
-    skip = family.skip_per_image(model)
-    names = list(cameras)
-    B = input_ids.shape[0]
-    is_img = input_ids == tid
-    counts = is_img.sum(-1)
-    if pixel_attention_mask is not None:
-        pam = pixel_attention_mask.to(torch.bool).cpu()
-        if pam.shape != (B, len(names)):
-            raise ValueError(
-                f"pixel_attention_mask has shape {tuple(pam.shape)}, but {len(names)} camera(s) {names} are "
-                f"declared for batch {B}: the cameras must match the model's image slots"
-            )
+def camera_geometries(model: nn.Module, family: ModelFamily, cameras: Any) -> dict[str, PatchGeometry]:
+    """{camera: PatchGeometry} from a GazeRegularizer's `cameras` argument (see there)."""
+    if cameras is None:
+        return {"image": camera_geometry(model, family=family)}
+    if isinstance(cameras, PatchGeometry):
+        return {"image": cameras}
+    if isinstance(cameras, Mapping):
+        out = dict(cameras)
     else:
-        pam = torch.ones(B, len(names), dtype=torch.bool)
-    need = pam.sum(-1) * tpi
-    if not torch.equal(counts.cpu(), need):
-        b = int((counts.cpu() != need).nonzero()[0, 0])
-        cams = " + ".join(
-            f"{c} ({cameras[c].grid_hw[0]}x{cameras[c].grid_hw[1]} grid"
-            + (f" + {skip} CLS" if skip else "")
-            + f" = {tpi} tokens)"
-            for c, on in zip(names, pam[b].tolist())
-            if on
-        )
-        raise ValueError(
-            f"sample {b} holds {int(counts[b])} image tokens (image_token_id={tid}) but the declared camera "
-            f"geometry needs {int(need[b])}: {cams or 'no camera present'}. The camera/grid mapping does not "
-            "match the prompt (wrong number of cameras, image size/patch size/pixel shuffle, or image splitting)"
-        )
-    pos = torch.arange(input_ids.shape[1], device=input_ids.device)
-    keys = torch.zeros(
-        B, sum(g.n_patches for g in cameras.values()), dtype=torch.long, device=input_ids.device
-    )
-    for b in range(B):
-        p = pos[is_img[b]]
-        slot = 0
-        offset = 0
-        for c, name in enumerate(names):
-            n = cameras[name].n_patches
-            if pam[b, c]:
-                keys[b, offset : offset + n] = p[slot * tpi + skip : (slot + 1) * tpi]
-                slot += 1
-            offset += n
-    return keys, pam
+        out = {str(c): camera_geometry(model, family=family) for c in cameras}
+    if not out:
+        raise ValueError("at least one camera is needed")
+    return out
 
 
-def query_positions(
-    family: ModelFamily,
-    model: nn.Module,
-    queries: QuerySpec,
-    inputs: dict[str, Any],
-    batch: int,
-    device: torch.device,
-) -> Tensor:
-    """(B, n_queries) positions along the regularized attention's query axis for this forward."""
-    q = queries
-    if callable(q):
-        q = q(inputs)
-    if isinstance(q, str):
-        fam = family.name
-        if fam == "pi0":
-            chunk = int(model.config.chunk_size)
-            if q == "actions":
-                return torch.arange(1, chunk + 1, device=device).expand(batch, -1)
-            if q == "suffix":
-                return torch.arange(0, chunk + 1, device=device).expand(batch, -1)
-            raise ValueError(f"unknown PI0 queries {q!r}; use 'actions', 'suffix' or explicit positions")
-        ids = inputs.get("input_ids")
-        T = ids.shape[1]
-        if q == "last":
-            am = inputs.get("attention_mask")
-            if am is None:
-                return torch.full((batch, 1), T - 1, device=device)
-            idx = torch.arange(T, device=am.device).expand_as(am)
-            return torch.where(am.bool(), idx, -1).amax(-1, keepdim=True).to(device)
-        if q == "labels":
-            labels = inputs.get("labels")
-            if labels is None:
-                raise ValueError("queries='labels' needs `labels` in the forward call")
-            sel = labels[:, 1:] != -100  # position t predicts labels[t + 1]
-            n = sel.sum(-1)
-            if n.min() == 0 or n.min() != n.max():
-                raise ValueError(
-                    f"queries='labels' needs the same, non-zero number of supervised tokens per sample, got "
-                    f"{n.tolist()}; pass explicit (B, n_queries) positions instead"
-                )
-            idx = torch.arange(T - 1, device=labels.device).expand_as(sel)
-            return idx[sel].reshape(batch, int(n[0])).to(device)
-        raise ValueError(f"unknown queries {q!r}; use 'last', 'labels' or explicit positions")
-    t = torch.as_tensor(q, dtype=torch.long, device=device)
-    if t.ndim == 1:
-        t = t.expand(batch, -1)
-    if t.ndim != 2 or t.shape[0] != batch:
-        raise ValueError(
-            f"query positions must be (n_queries,) or ({batch}, n_queries), got {tuple(t.shape)}"
-        )
-    return t
+def attention_modules(model: nn.Module, config: Any, family_name: str) -> list[nn.Module]:
+    """The attention modules that read `config` (the regularized decoder's), in layer_idx order 0..n-1."""
+    found = {}
+    for mod in model.modules():
+        if getattr(mod, "config", None) is config and hasattr(mod, "layer_idx") and hasattr(mod, "q_proj"):
+            found[int(mod.layer_idx)] = mod
+    if not found:
+        raise RuntimeError(f"found no attention modules of {type(model).__name__}'s {family_name} decoder")
+    if sorted(found) != list(range(len(found))):
+        raise RuntimeError(f"attention layer_idx values {sorted(found)} are not 0..{len(found) - 1}")
+    return [found[i] for i in range(len(found))]
