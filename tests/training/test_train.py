@@ -151,3 +151,28 @@ def test_two_process_cpu_ddp(tiny_store, launch_two):
     recs = read_metrics(run / "metrics.jsonl")
     assert [x["step"] for x in recs] == [3, 6] and "loss/gaze_kl" in recs[-1]
     assert load_policy(latest_checkpoint(run)).num_parameters() > 0
+
+
+def test_two_processes_log_the_gaze_term_of_one_process(tiny_store, launch_two, tmp_path, capsys):
+    """Two CPU processes (DDP, 4 samples each) and one process on the same global batch of 8: the first step's
+    gaze term and its logs are the same. Seed 1's first batch holds 5 samples with gaze, so the processes hold
+    different numbers of them; a per-process mean averaged over the processes would log (and optimise)
+    1.7684 where one process has 1.7825. Tolerance 1e-5 relative: the per-sample float32 divergences are summed
+    in another order (4 + 4, rescaled, then a float64 mean over the processes, vs one sum of 8) after matmuls over
+    4-row instead of 8-row batches: measured differences are about 1e-7 relative."""
+    args = ["--preset", "ci", "--data.store", str(tiny_store.root), "--gaze.prior", "square", "--seed", "1"]
+    args += ["--shift", "0", "--steps", "1", "--log-every", "1", "--eval-every", "1", "--save-every", "1"]
+    assert main([*args, "--run-dir", str(tmp_path / "one")]) == 0
+    capsys.readouterr()
+    one = read_metrics(tmp_path / "one" / "metrics.jsonl")[0]
+    r, folder = launch_two(
+        lambda folder: ["-m", "gazereg.training.loop", *args, "--run-dir", str(folder / "ddp")],
+        lambda folder: (folder / "ddp/checkpoints/step_000001").is_dir(),
+    )
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert "2 process(es)" in r.stderr
+    two = read_metrics(folder / "ddp" / "metrics.jsonl")[0]
+    assert one["step"] == two["step"] == 1
+    assert one["gaze/valid_frac"] == two["gaze/valid_frac"] == 0.625  # 5 of 8: 2 + 3 or 1 + 4 per process
+    for key in ("loss/gaze_kl", "gaze/patch_mass"):
+        assert two[key] == pytest.approx(one[key], rel=1e-5), key

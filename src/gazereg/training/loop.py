@@ -7,6 +7,7 @@
     accelerate launch --multi_gpu --num_processes 2 -m gazereg.training.loop --preset ci ...   (DDP; CPU: gloo)
 
 Loss per step:  L = L_action + w(step) * mean_{valid b} KL(gaze_b || attention_b)
+(the mean over the valid samples of the global batch, also with several processes: `across_processes`)
 where attention_b is the action queries' attention to the gaze camera's patch tokens on `gaze.layers`
 (captured by an AttentionProbe, averaged over heads, queries and layers, renormalised over the patches) and
 gaze_b the stored prior mapped onto the policy's patch grid once when the data set is built. With
@@ -133,7 +134,7 @@ def gaze_term(
     cfg, built = run.cfg, run.built
 
     def kl(dist: Tensor) -> tuple[Tensor, dict[str, float]]:
-        return gaze_loss(
+        loss, info = gaze_loss(
             batch["gaze"],
             dist,
             batch["gaze_valid"],
@@ -142,6 +143,7 @@ def gaze_term(
             gaze_grid=built.gaze_grid,
             attention_grid=built.attention_grid,
         )
+        return across_processes(run, loss, batch["gaze_valid"]), info
 
     attention = probe.distribution()
     kl_attention, ginfo = kl(attention if capture is None else attention.detach())
@@ -155,6 +157,22 @@ def gaze_term(
     kl_location, _ = kl(run.location_head(capture.features()))
     terms["loss/location_kl"] = float(kl_location.detach())
     return kl_location, terms
+
+
+def across_processes(run: Run, kl: Tensor, valid: Tensor) -> Tensor:
+    """`kl` () (the mean over this process's valid samples; `valid` (B,) bool) rescaled to this process's share of
+    the mean over the valid samples of the whole global batch: kl * n_local * processes / n_global. DDP averages
+    the processes' gradients and `Interval.means` their logged values, so both are then that global mean, as in
+    one process on the same batch (a plain per-process mean weights a sample by 1 / its process's valid count).
+    One all-reduce of the count; unchanged with one process or when no sample of the global batch is valid."""
+    world = run.acc.num_processes
+    if world == 1:
+        return kl
+    n_local = valid.detach().to(device=kl.device, dtype=torch.float64).sum()
+    total = float(run.acc.reduce(n_local.reshape(1), "sum").item())
+    if total == 0:
+        return kl
+    return kl * (float(n_local) * world / total)
 
 
 @torch.no_grad()
