@@ -3,6 +3,14 @@ their validation (`GazeOptions`, `validate_gaze_options`), the checks of the dat
 is built (`check_gaze_features`, gaze_data.check_gaze_data) and while it trains (`GazeActivity`), and the gaze term
 added to the policy's loss (`add_gaze_term`).
 
+Several processes (`accelerate launch --multi_gpu --num_processes N lerobot-train ...`, DDP): the gaze term is a
+mean over the valid frames of the GLOBAL batch, as in one process on the same batch. Each process's term is its
+sum over its own valid frames times N / (valid frames over all processes) (`across_processes`: one all-reduce of
+the count per training forward, so every process must run the training forward at every step), so DDP's average of
+the processes' gradients and lerobot-train's average of the logged `loss/gaze_kl` are that global mean; a plain
+per-process mean would weight a frame by 1 / (its process's valid count) and differ whenever the processes hold
+different numbers of frames with gaze.
+
 Every check raises errors.GazeUsageError naming the option or column; inside lerobot-train it is printed as one
 line with exit status 2 (errors.refusing). When each check runs:
 - the options (`validate_gaze_options`): when the config is built, i.e. while lerobot-train parses its command line;
@@ -25,6 +33,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
 
+import torch
 from torch import Tensor
 
 from gazereg.integrations.gaze_mass import check_target_mass, gaze_mass_kl, gaze_mass_loss
@@ -218,6 +227,25 @@ def gaze_term(
     return gaze_mass_loss(gaze, raw, mass, valid, kind=kind)[0], None
 
 
+def across_processes(kl: Tensor, valid: Tensor) -> Tensor:
+    """`kl` () (the mean over this process's valid frames; `valid` (B,) bool) rescaled to this process's share of
+    the mean over every process's valid frames: kl * n_local * world / n_global, so that averaging it over the
+    processes (DDP's gradient average, lerobot-train's log) gives sum over all valid frames / n_global. Returned
+    unchanged outside torch.distributed, with one process, or when no process has a valid frame."""
+    if not (torch.distributed.is_available() and torch.distributed.is_initialized()):
+        return kl
+    world = torch.distributed.get_world_size()
+    if world == 1:
+        return kl
+    n_local = valid.detach().to(device=kl.device, dtype=torch.float64).sum()
+    n_global = n_local.clone().reshape(1)
+    torch.distributed.all_reduce(n_global)  # a sum over the processes
+    total = float(n_global.item())
+    if total == 0:
+        return kl
+    return kl * (float(n_local) * world / total)
+
+
 def add_gaze_term(
     cfg: GazeOptions,
     capture: Capture,
@@ -232,6 +260,7 @@ def add_gaze_term(
     kl, per_sample = gaze_term(
         capture, gaze, valid, cfg.gaze_divergence, cfg.gaze_target_mass, reduction == "none"
     )
+    kl = across_processes(kl, valid)
     w = float(cfg.gaze_weight)
     total = loss + w * (per_sample if reduction == "none" else kl)
     loss_dict.update(
