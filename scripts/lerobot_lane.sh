@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The LeRobot lane: lerobot 0.6.1 needs Python >= 3.12, so it lives in its own venv, outside the repository
 # (reused across runs and clones): $GAZEREG_LEROBOT_VENV, default ~/.cache/gazereg/lerobot-py312.
-# Creates/reuses it, installs gazereg's core (--no-deps) and the lerobot_policy_gazereg plugin into it, and runs
-# tests_lerobot/. Exits 0 with "skipped: no Python 3.12" where no Python 3.12 interpreter exists.
+# Creates/reuses it, installs gazereg (editable, with its dependencies) and the lerobot_policy_gazereg plugin
+# (editable) into it, and runs tests_lerobot/. Exits 0 with "skipped: no Python 3.12" where no Python 3.12
+# interpreter exists.
 #
 #   bash scripts/lerobot_lane.sh [pytest args...]
 set -euo pipefail
@@ -40,9 +41,14 @@ else
     echo "$LEROBOT_REQ" >"$stamp"
 fi
 
-# gazereg's core modules need only torch and numpy (both come with lerobot): install it without dependencies,
-# editable from this checkout, next to the plugin. Re-run every time (seconds) so the venv follows the checkout.
-"$VENV/bin/pip" install -q --no-deps --no-build-isolation -e "$ROOT" -e "$ROOT/lerobot_plugin"
+# gazereg editable from this checkout with its dependencies (tyro, ...: what its commands need; torch, numpy and
+# accelerate are lerobot's, inside gazereg's ranges), then the plugin editable. The plugin's own requirement on
+# gazereg is a direct reference to this checkout (lerobot_plugin/setup.py), which pip will not match with an
+# editable gazereg in one resolve, so it goes in with --no-deps; its lerobot extras are the stamp's. A user's one
+# command, `pip install ./lerobot_plugin`, is tests_lerobot/test_install.py's. Re-run every time (seconds) so the
+# venv follows the checkout.
+"$VENV/bin/pip" install -q --no-build-isolation -e "$ROOT"
+"$VENV/bin/pip" install -q --no-deps --no-build-isolation -e "$ROOT/lerobot_plugin"
 
 set +e
 HF_HUB_OFFLINE=1 HF_DATASETS_OFFLINE=1 "$VENV/bin/python" -m pytest -q -p no:cacheprovider "$ROOT/tests_lerobot" "$@"

@@ -72,7 +72,7 @@ def _run(cmd: list[str], cwd: Path) -> subprocess.CompletedProcess:
 
 
 def test_readme_commands_run_offline_as_written(tmp_path, tiny_vlm, dataset_root):
-    train = _tiny_train_script(_block_with("bash", "lerobot-train "), tiny_vlm, dataset_root)
+    train = _tiny_train_script(_block_with("bash", "--policy.gaze_key=gaze.point"), tiny_vlm, dataset_root)
     r = _run(["bash", "-euo", "pipefail", "-c", train], tmp_path)
     assert r.returncode == 0, (r.stdout + r.stderr)[-4000:]
     assert "loss/gaze_kl:" in r.stdout + r.stderr
