@@ -10,7 +10,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$(pwd)
 VENV=${GAZEREG_LEROBOT_VENV:-$HOME/.cache/gazereg/lerobot-py312}
-LEROBOT_REQ='lerobot[smolvla,pi,dataset]==0.6.1'
+# metaworld: lerobot's extra (metaworld 3.0.0) for lerobot-eval --env.type=metaworld (tests_lerobot/test_lerobot_eval.py);
+# mujoco pinned to 3.3.0 (the main venv's) as metaworld 3.0.0 fails at reset with MuJoCo 4 (eq_data 11 vs 12).
+LEROBOT_REQ='lerobot[smolvla,pi,dataset,metaworld]==0.6.1'
 start=$(date +%s)
 
 find_py312() {
@@ -37,7 +39,7 @@ else
     mkdir -p "$(dirname "$VENV")"
     "$PY312" -m venv "$VENV"
     "$VENV/bin/pip" install -q --upgrade pip
-    "$VENV/bin/pip" install -q "$LEROBOT_REQ" pytest
+    "$VENV/bin/pip" install -q "$LEROBOT_REQ" mujoco==3.3.0 pytest
     echo "$LEROBOT_REQ" >"$stamp"
 fi
 
