@@ -11,7 +11,8 @@ from gazereg.runtime.errors import UsageError
 
 def test_unknown_simulator_names_the_registered_ones():
     with pytest.raises(
-        UnknownSimulator, match=r"unknown simulator 'gazebo'; choose one of \['libero', 'metaworld'\]"
+        UnknownSimulator,
+        match=r"unknown simulator 'gazebo'; choose one of \['aloha', 'libero', 'metaworld'\]",
     ):
         base.simulator("gazebo")
     with pytest.raises(UsageError):  # a user mistake: `gazereg` exits 2 with its message

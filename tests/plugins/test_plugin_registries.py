@@ -77,11 +77,12 @@ def test_without_the_plugin_the_toy_names_are_refused_in_one_line(tmp_path, caps
     assert _collect(tmp_path / "demos", capsys) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [
-        "gazereg collect: error: --env: unknown simulator 'toy'; choose one of ['libero', 'metaworld']"
+        "gazereg collect: error: --env: unknown simulator 'toy'; choose one of ['aloha', 'libero', 'metaworld']"
     ]
     assert not (tmp_path / "demos").exists()
     with pytest.raises(
-        UsageError, match=r"^--env: unknown simulator 'toy'; choose one of \['libero', 'metaworld'\]$"
+        UsageError,
+        match=r"^--env: unknown simulator 'toy'; choose one of \['aloha', 'libero', 'metaworld'\]$",
     ):
         EvalConfig(env="toy")
     with pytest.raises(

@@ -55,10 +55,14 @@ def two_cores(monkeypatch):
     monkeypatch.setattr(os, "cpu_count", lambda: 2)  # the presets with one worker per core, as snapshotted
 
 
+ADDED_SINCE = {"experiment": {"aloha"}}
+"""presets added after the snapshot (nothing to compare them with)"""
+
+
 def test_every_preset_keeps_its_values_under_its_new_name(two_cores):
     for snap_kind, (kind, names) in RENAMED.items():
         presets = _presets(kind)
-        assert set(presets) == set(names.values()), kind
+        assert set(presets) - ADDED_SINCE.get(kind, set()) == set(names.values()), kind
         for old, new in names.items():
             before = BEFORE[snap_kind][old]
             if snap_kind == "glc_train" and before["config"] == "full":

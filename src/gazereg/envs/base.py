@@ -64,6 +64,13 @@ _SIMULATORS: dict[str, Simulator] = {
         collector="gazereg.envs.libero.collector:LiberoCollector",
         lockstep=1,  # an environment holds ~1.2 GB (gazereg.envs.cache) and rendering dominates its step
     ),
+    # Gym-Aloha (transfer cube, insertion): runs in the Aloha lane's venv (scripts/aloha_lane.sh).
+    "aloha": Simulator(
+        "aloha",
+        env="gazereg.envs.aloha.env:AlohaEnv",
+        collector="gazereg.envs.aloha.collector:AlohaCollector",
+        lockstep=1,
+    ),
 }
 
 

@@ -1,5 +1,5 @@
 """The experiment's configuration and its named presets (smoke, quick, paper, sweep, full, libero,
-libero_smoke). Other commands' presets have names of their own kind (training recipes, evaluation and
+libero_smoke, aloha). Other commands' presets have names of their own kind (training recipes, evaluation and
 collection budgets, policy and GLC sizes); `gazereg presets` lists them all. What the presets cost and what
 they were sized from (measured): docs/presets.md.
 
@@ -368,6 +368,51 @@ def libero_smoke() -> ExperimentConfig:
     )
 
 
+ALOHA_TASKS = ("AlohaTransferCube-v0", "AlohaInsertion-v0")
+"""Gym-Aloha's two tasks, as LeRobot's `aloha` env names them (`gazereg.envs.aloha.setup.TASKS`)"""
+
+
+def aloha() -> ExperimentConfig:
+    """Gym-Aloha, the paper's bimanual benchmark (`bash scripts/aloha_lane.sh gazereg experiment --preset
+    aloha`): transfer cube and insertion from the `top` camera at 128 px (patches of 16 px), baseline, gaze
+    (visuomotor: the eyes lead each hand to its next target, cube then hand-over point; peg, socket, then the
+    meeting point) and the uniform control, one training seed; 50 scripted demonstrations per task on setups
+    0..49 (failed ones replaced from 50..69), 50 unseen evaluation episodes per task (setups 1000..1049) of the
+    env's 400 steps, clean. The arms, tasks and seeds are fixed; the training length was not tuned on Aloha."""
+    t = cpu_train()
+    return ExperimentConfig(
+        out=Path("runs/aloha"),
+        env="aloha",
+        tasks=ALOHA_TASKS,
+        camera="top",
+        image_size=128,
+        demos_per_task=50,
+        demo_max_failures=20,
+        heldout_per_task=2,
+        arms=("baseline", "gaze", "uniform"),
+        train=replace(
+            t,
+            steps=6000,
+            batch_size=32,
+            policy=dataclasses.replace(t.policy, image_hw=(128, 128), patch_size=16),
+            device="auto",
+        ),
+        parallel=2,
+        eval=EvalConfig(
+            env="aloha",
+            tasks=ALOHA_TASKS,
+            episodes=50,
+            seed_start=1000,
+            max_steps=400,
+            conditions=("clean",),
+            workers=os.cpu_count() or 2,
+            videos=1,
+        ),
+        convergence_points=1,
+        convergence_episodes=50,
+    )
+
+
 PRESETS = {
     "quick": quick,
     "smoke": smoke,
@@ -376,4 +421,5 @@ PRESETS = {
     "sweep": sweep,
     "libero": libero,
     "libero_smoke": libero_smoke,
+    "aloha": aloha,
 }

@@ -9,10 +9,15 @@ facts `gazereg collect` stores (projected object/goal positions, contact and suc
 Targets. Per task, a sequence of points the hand visits: `("obj", "goal")` (the object, then the place or
 goal region) for most tasks, including those without a grasp (button, drawer, door, window: the part the hand
 pushes or pulls, then where it has to go); `("goal",)` for reach tasks, which have no object to act on.
-`targets=` overrides the sequence (any point with `<name>_uv.<camera>` and `<name>_pos` extras).
+`targets=` overrides the sequence (any point with `<name>_uv.<camera>` and `<name>_pos` extras). An episode
+whose meta names its own sequence (`meta["gaze_targets"]`, as Gym-Aloha's collector stores: the cube, then the
+hand-over point; the peg, the socket, then the meeting point) is fixated in that order when `targets=` is not
+given.
 
 Timing. The hand arrives at the object at the first frame with gripper contact (or, in an episode without
-contact, with the gripper within `arrive_radius` of it), and at the goal at the first success (or the object/hand within `arrive_radius` of
+contact, with the gripper within `arrive_radius` of it; where the episode records which hand acts on which
+object, a `contact.<name>` extra, bool (T,), the first frame of that contact instead: two hands, two objects),
+and at the goal at the first success (or the object/hand within `arrive_radius` of
 the goal). The eyes switch from target k-1 to target k at
     s_k = max(arrive_{k-1} + dwell, arrive_k - lead)
 so they stay on the object until the hand has it (plus `dwell_s`), and are on the next target at least
@@ -167,6 +172,8 @@ class VisuomotorGaze:
     def targets_for(self, episode: Episode) -> tuple[str, ...]:
         if self.targets is not None:
             return self.targets
+        if "gaze_targets" in episode.meta:
+            return tuple(str(t) for t in episode.meta["gaze_targets"])
         return ("goal",) if episode.task in GOAL_ONLY_TASKS else ("obj", "goal")
 
     def _extra(self, episode: Episode, key: str) -> np.ndarray:
@@ -196,6 +203,10 @@ class VisuomotorGaze:
         else:
             # The gripper touching the object; the gripper coming within arrive_radius only when it never does
             # (hovering over an object is not having it).
+            own = f"contact.{name}"  # the hand that acts on this object touching it (Gym-Aloha: two hands)
+            if own in episode.extras:
+                hit = np.asarray(episode.extras[own]).astype(bool)
+                return int(np.argmax(hit)) if hit.any() else T
             hit = np.zeros(T, bool)
             for event in ("contact", "grasp"):
                 if event in episode.extras:
