@@ -39,6 +39,22 @@ def dataset(dataset_root):
     )
 
 
+def tiny_smolvla_gaze_flags(tiny_vlm: Path) -> list[str]:
+    """The `lerobot-train` options of a tiny smolvla_gaze on the CPU (a 4-layer VLM built from `tiny_vlm`'s
+    config, no weights loaded, 64 px images, chunks of 5): what every lane test that trains one starts from."""
+    return [
+        "--policy.type=smolvla_gaze",
+        f"--policy.vlm_model_name={tiny_vlm}",
+        "--policy.load_vlm_weights=false",
+        "--policy.resize_imgs_with_padding=[64,64]",
+        "--policy.chunk_size=5",
+        "--policy.n_action_steps=5",
+        "--policy.num_vlm_layers=4",
+        "--policy.device=cpu",
+        "--policy.push_to_hub=false",
+    ]
+
+
 def make_config(tiny_vlm, **kw):
     from lerobot_policy_gazereg.configuration_smolvla_gaze import SmolVLAGazeConfig
     from lerobot_policy_gazereg.testing import tiny_smolvla_args

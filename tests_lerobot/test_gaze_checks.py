@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import make_config
+from conftest import make_config, tiny_smolvla_gaze_flags
 
 GAZE_TYPES = ["smolvla_gaze", "pi0_gaze", "pi05_gaze"]
 
@@ -211,15 +211,7 @@ def _lerobot_train(
     exe = Path(sys.executable).with_name("lerobot-train")
     cmd = [
         str(exe),
-        "--policy.type=smolvla_gaze",
-        f"--policy.vlm_model_name={tiny_vlm}",
-        "--policy.load_vlm_weights=false",
-        "--policy.resize_imgs_with_padding=[64,64]",
-        "--policy.chunk_size=5",
-        "--policy.n_action_steps=5",
-        "--policy.num_vlm_layers=4",
-        "--policy.device=cpu",
-        "--policy.push_to_hub=false",
+        *tiny_smolvla_gaze_flags(tiny_vlm),
         "--policy.gaze_camera=observation.images.front",
         "--dataset.repo_id=local/lerobot_v3_tiny",
         f"--dataset.root={dataset_root}",

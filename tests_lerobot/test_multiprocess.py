@@ -36,6 +36,8 @@ from pathlib import Path
 import pytest
 import torch
 
+from conftest import tiny_smolvla_gaze_flags
+
 INVALID = (0, 1, 2)  # frames of episode 0 whose gaze point becomes NaN (no gaze)
 SITE = textwrap.dedent(
     """
@@ -109,15 +111,7 @@ def _train(tmp_path: Path, tiny_vlm: Path, dataset: Path, processes: int) -> tup
         cmd += ["--num_machines", "1", "--mixed_precision", "no", "--dynamo_backend", "no"]
         cmd += ["--main_process_port", str(port), str(bin_dir / "lerobot-train")]
     cmd += [
-        "--policy.type=smolvla_gaze",
-        f"--policy.vlm_model_name={tiny_vlm}",
-        "--policy.load_vlm_weights=false",
-        "--policy.resize_imgs_with_padding=[64,64]",
-        "--policy.chunk_size=5",
-        "--policy.n_action_steps=5",
-        "--policy.num_vlm_layers=4",
-        "--policy.device=cpu",
-        "--policy.push_to_hub=false",
+        *tiny_smolvla_gaze_flags(tiny_vlm),
         "--policy.gaze_weight=1.0",
         "--policy.gaze_camera=observation.images.front",
         "--policy.gaze_layers=[1,3]",

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from conftest import make_config
+from conftest import make_config, tiny_smolvla_gaze_flags
 from gazereg.patches import PatchGeometry
 
 
@@ -173,15 +173,7 @@ def _lerobot_train(tmp_path: Path, dataset_root: Path, tiny_vlm: Path, steps: in
     exe = Path(sys.executable).with_name("lerobot-train")
     cmd = [
         str(exe),
-        "--policy.type=smolvla_gaze",
-        f"--policy.vlm_model_name={tiny_vlm}",
-        "--policy.load_vlm_weights=false",
-        "--policy.resize_imgs_with_padding=[64,64]",
-        "--policy.chunk_size=5",
-        "--policy.n_action_steps=5",
-        "--policy.num_vlm_layers=4",
-        "--policy.device=cpu",
-        "--policy.push_to_hub=false",
+        *tiny_smolvla_gaze_flags(tiny_vlm),
         "--policy.gaze_weight=1.0",
         "--policy.gaze_camera=observation.images.front",
         "--policy.gaze_layers=[1,3]",
