@@ -7,17 +7,22 @@ damped least-squares inverse kinematics over each arm's Jacobian.
 
 Each arm follows a piecewise-linear path of grasp-point poses (`Waypoint`: step, position in metres, the
 gripper's pointing direction as a horizontal heading and a downward pitch, its opening 0..1). Every step the
-commanded pose is interpolated and `ArmIK.solve` moves the commanded joints (warm-started from the last
-command) until the grasp point is within 1 mm of it. The IK runs on a scratch `MjData` of the env's model, so
-it never disturbs the simulation; the 6 joints it returns are the action, sent to gym-aloha's position servos.
+commanded pose is interpolated (headings the shorter way round) and `ArmIK.solve` moves the commanded joints
+(warm-started from the last command) until the grasp point is within 1 mm of it, with a weak pull of the two
+wrist rolls towards 0 that keeps the wrist out of its flipped solutions. The IK runs on a scratch `MjData` of
+the env's model, so it never disturbs the simulation; the 6 joints it returns are the action, sent to
+gym-aloha's position servos. Where the grasp decides where an object ends up, the arm steers on the measured
+object poses instead (integral control of the commanded grasp point, `_steer`).
 
 Transfer cube: the right arm takes the cube from above (pitched 60 degrees down, fingers closing across its
 heading) and carries it to the meeting point `AlohaTask.meet`; the left arm comes in level from the left with
-its fingers closing vertically, closes on the cube, the right arm lets go and backs away.
+its fingers closing vertically, steering on the cube's measured centre, closes on it; the right arm lets go
+and backs away.
 Insertion: the right arm takes the peg by its right end, the left arm the socket by its left end, both lift
 them to the meeting point, level, the peg 4 cm right of the socket's mouth; then the right arm pushes the peg
 along the socket's axis, steering by the measured peg and socket positions (the grasp is never exact) until
-the peg touches the pin.
+the peg touches the pin; meanwhile the right wrist turns until the peg's axis is parallel to the socket's.
+The measured success (python -m gazereg.envs.aloha.measure): docs/aloha.md.
 """
 
 from __future__ import annotations
@@ -36,8 +41,12 @@ CUBE_GRASP_Z = 0.035
 PEG_REST_Z, PEG_GRASP_Z = 0.01, 0.02
 SOCKET_REST_Z, SOCKET_GRASP_Z = 0.02, 0.03
 HANDOVER_FROM = 210
-MAX_STEER = 0.01
-"""the insertion's steering moves the right grasp point's target at most this far from where it is, per step (m)"""
+MAX_STEER = 0.005
+STEER_GAIN = 0.3
+ROLL_WEIGHT = 0.02
+"""weight of the IK's pull of the two wrist rolls towards 0 (metres of grasp-point error per radian)"""
+"""the steering (hand-over, insertion) moves a commanded grasp point at most this far per step (m), by this share
+of the measured error"""
 
 
 @dataclass(frozen=True)
@@ -79,6 +88,10 @@ class ArmIK:
         self.dadr = np.array([int(j.dofadr[0]) for j in joints])
         self.lo = np.array([model.jnt_range[j.id][0] for j in joints])
         self.hi = np.array([model.jnt_range[j.id][1] for j in joints])
+        # Two extra rows pull forearm_roll and wrist_rotate towards 0 (weight ROLL_WEIGHT): near the wrist's
+        # singularity (wrist_angle ~ 0, the two roll axes aligned) the solver otherwise winds both towards +-pi,
+        # the same poses with the wrist flipped, where the joints' limits leave it unable to follow a target.
+        self.rolls = np.array([ARM_JOINTS.index("forearm_roll"), ARM_JOINTS.index("wrist_rotate")])
         self.body = model.body(f"vx300s_{arm}/gripper_link").id
         self.damping, self.w = damping, rot_weight
         self._jp = np.zeros((3, model.nv))
@@ -105,9 +118,11 @@ class ArmIK:
                 break
             self._mj.mj_comPos(self.m, self.d)
             self._mj.mj_jac(self.m, self.d, self._jp, self._jr, p, self.body)
-            J = np.vstack([self._jp[:, self.dadr], self.w * self._jr[:, self.dadr]])
-            e = np.concatenate([ep, self.w * er])
-            dq = J.T @ np.linalg.solve(J @ J.T + lam2 * np.eye(6), e)
+            S = np.zeros((2, 6))
+            S[[0, 1], self.rolls] = ROLL_WEIGHT
+            J = np.vstack([self._jp[:, self.dadr], self.w * self._jr[:, self.dadr], S])
+            e = np.concatenate([ep, self.w * er, -ROLL_WEIGHT * q[self.rolls]])
+            dq = J.T @ np.linalg.solve(J @ J.T + lam2 * np.eye(8), e)
             q = np.clip(q + np.clip(dq, -0.2, 0.2), self.lo, self.hi)
         return q
 
@@ -122,10 +137,9 @@ def _interp(path: list[Waypoint], t: int) -> tuple[np.ndarray, np.ndarray, float
             s = (t - a.t) / max(b.t - a.t, 1)
             s = s * s * (3 - 2 * s)  # smoothstep: start and stop without a jerk
             pos = (1 - s) * np.asarray(a.pos) + s * np.asarray(b.pos)
-            ang = [
-                (1 - s) * x + s * y
-                for x, y in zip((a.yaw, a.pitch, a.roll), (b.yaw, b.pitch, b.roll), strict=True)
-            ]
+            # the shorter way round: a heading of -173 degrees goes to 180 by 7 degrees, not by 353
+            dyaw = (b.yaw - a.yaw + np.pi) % (2 * np.pi) - np.pi
+            ang = (a.yaw + s * dyaw, (1 - s) * a.pitch + s * b.pitch, (1 - s) * a.roll + s * b.roll)
             return pos, gripper_rotation(*ang), (1 - s) * a.grip + s * b.grip
     w = path[-1]
     return np.asarray(w.pos), gripper_rotation(w.yaw, w.pitch, w.roll), w.grip
@@ -145,6 +159,7 @@ class AlohaExpert:
         self.rng = np.random.default_rng(seed)
         self.t = 0
         self.env = env
+        self.steering: set[str] = set()  # the arms steering on measured poses (from then on, to the end)
         self.ik = {a: ArmIK(env.physics_model, a) for a in ARMS}
         q = env.physics_data.qpos
         self.q = {a: np.array(q[self.ik[a].qadr]) for a in ARMS}
@@ -216,49 +231,67 @@ class AlohaExpert:
         ]
         self.insert_from = 250
         self.insert_steps = 90
+        self.peg_pitch, self.peg_yaw = float(hold_pitch), float(np.pi)
         return {"left": left, "right": right}
 
     # ----- acting -----------------------------------------------------------------------------------------
     def _insertion_target(self, t: int) -> np.ndarray | None:
-        """From `insert_from` on: the right grasp point that moves the peg's centre from 16 to 9.5 cm right of
+        """From `insert_from` on: the right grasp point that moves the peg's centre from 16 to 9 cm right of
         the socket's centre along the socket's axis, corrected by the peg's measured offset in the grip."""
         if self.env.spec_task.gym_task != "insertion" or t < self.insert_from:
             return None
-        if not self.env.contact_state()[0]:  # the peg is not in the right hand: nothing to steer
-            return None
+        if "right" not in self.steering and not self.env.contact_state()[0]:
+            return None  # the peg is not in the right hand: nothing to steer (once started, a flicker of
+            # the fingers' contact must not send the arm back to its waypoints)
+        self.steering.add("right")
         s = min(1.0, (t - self.insert_from) / self.insert_steps)
         socket, Rs = self.env.object_pose(1)
         peg, _ = self.env.object_pose(0)
         axis = Rs[:, 0] if Rs[0, 0] > 0 else -Rs[:, 0]
-        want_peg = socket + axis * ((1 - s) * 0.16 + s * 0.095)
-        here = self.env.grasp_point("right")
-        target = want_peg + (here - peg)
-        step = target - here
-        n = np.linalg.norm(step)
-        return here + step * min(1.0, MAX_STEER / n) if n > 0 else target
+        want_peg = socket + axis * ((1 - s) * 0.16 + s * 0.09)
+        return self._steer("right", want_peg - peg)
+
+    def _level_peg(self) -> np.ndarray:
+        """The right gripper's frame during the insertion: its pitch and heading turned, a fifth of the error per
+        step, until the peg's axis is parallel to the socket's (the peg turns in the grip when it is taken)."""
+        _, Rp = self.env.object_pose(0)
+        _, Rs = self.env.object_pose(1)
+        peg = Rp[:, 0] if Rp[0, 0] > 0 else -Rp[:, 0]
+        sock = Rs[:, 0] if Rs[0, 0] > 0 else -Rs[:, 0]
+        tilt = np.arcsin(np.clip(peg[2], -1, 1)) - np.arcsin(np.clip(sock[2], -1, 1))
+        turn = np.arctan2(peg[1], peg[0]) - np.arctan2(sock[1], sock[0])
+        self.peg_pitch -= 0.2 * tilt
+        self.peg_yaw -= 0.2 * turn
+        return gripper_rotation(self.peg_yaw, self.peg_pitch)
 
     def _handover_target(self, t: int) -> np.ndarray | None:
         """Transfer, from step 210 on while the right hand holds the cube: the left grasp point goes from 12 cm
         to 1.5 cm left of the cube's measured centre (where the cube hangs in the right hand varies)."""
         if self.env.spec_task.gym_task != "transfer_cube" or t < HANDOVER_FROM:
             return None
-        if not self.env.contact_state()[0]:
+        if "left" not in self.steering and not self.env.contact_state()[0]:
             return None
+        self.steering.add("left")
         s = min(1.0, (t - HANDOVER_FROM) / 50)
         s = s * s * (3 - 2 * s)
         cube, _ = self.env.object_pose(0)
         target = cube + [(1 - s) * -0.12 + s * -0.015, 0.0, 0.0]
-        here = self.env.grasp_point("left")
-        step = target - here
+        return self._steer("left", target - self.env.grasp_point("left"))
+
+    def _steer(self, arm: str, error: np.ndarray) -> np.ndarray:
+        """The commanded grasp point moved by a share (`STEER_GAIN`, at most `MAX_STEER` metres) of a measured
+        position `error` (3,): integral control, so the servos' lag and sag under load leave no steady offset."""
+        here, _ = self.ik[arm].pose(self.q[arm])
+        step = STEER_GAIN * np.asarray(error)
         n = np.linalg.norm(step)
-        return here + step * min(1.0, MAX_STEER / n) if n > 0 else target
+        return here + (step * min(1.0, MAX_STEER / n) if n > 0 else step)
 
     def __call__(self, env: Any) -> np.ndarray:
         action = np.zeros(14)
         for i, a in enumerate(ARMS):
             pos, R, grip = _interp(self.paths[a], self.t)
             if a == "right" and (target := self._insertion_target(self.t)) is not None:
-                pos = target
+                pos, R = target, self._level_peg()
             if a == "left" and (target := self._handover_target(self.t)) is not None:
                 pos = target
             self.q[a] = self.ik[a].solve(self.q[a], pos, R)
