@@ -83,3 +83,18 @@ def test_unknown_simulator_lists_aloha():
 
     with pytest.raises(UnknownSimulator, match="'aloha'"):
         simulator("nosuch")
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--tasks", "nosuch"], "unknown Gym-Aloha task 'nosuch'"),
+        (["--seeds", "0", "0"], "--seeds takes FIRST >= 0 and COUNT >= 1, got 0 0"),
+    ],
+)
+def test_measure_refuses_bad_input_in_one_line_before_any_work(argv, message, capsys):
+    from gazereg.envs.aloha.measure import main
+
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
