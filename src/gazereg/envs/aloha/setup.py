@@ -73,7 +73,7 @@ def aloha_available() -> tuple[bool, str]:
     if missing:
         return False, (
             f"{', '.join(missing)} not installed: Gym-Aloha runs in its own venv "
-            "(bash scripts/aloha_lane.sh creates ~/.cache/gazereg/aloha-<python>)"
+            "(bash scripts/aloha_lane.sh creates ~/.cache/gazereg/aloha-py<X.Y>)"
         )
     return True, ""
 
