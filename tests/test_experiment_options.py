@@ -14,7 +14,8 @@ import pytest
 from gazereg.envs.collect_config import collect_seeds
 from gazereg.evaluation.config import EvalConfig
 from gazereg.experiment.arms import arm_prior, fold_tasks, glc_fold_dir
-from gazereg.experiment.config import PRESETS, libero, libero_smoke, paper, quick, smoke
+from gazereg.experiment.config import PRESETS, paper, quick, smoke
+from gazereg.experiment.config_sims import libero, libero_smoke
 from gazereg.experiment.demos import demo_collections
 from gazereg.experiment.runner import Experiment
 from gazereg.gaze.sources.glc_folds import GLCFoldsParams

@@ -10,7 +10,7 @@ import numpy as np
 
 from gazereg.data.store import EpisodeStore
 from gazereg.evaluation.config import EvalConfig
-from gazereg.experiment.config import aloha
+from gazereg.experiment.config_sims import aloha
 from gazereg.experiment.demos import demo_stores
 from gazereg.experiment.runner import Experiment
 from gazereg.gaze.sources.visuomotor import VisuomotorGaze

@@ -13,7 +13,7 @@ import json
 import pytest
 
 from gazereg.envs.collect_config import collect_seeds
-from gazereg.experiment.config import libero, libero_smoke
+from gazereg.experiment.config_sims import libero, libero_smoke
 from gazereg.experiment.demos import demo_collections
 from gazereg.experiment.runner import Experiment
 

@@ -55,7 +55,7 @@ def two_cores(monkeypatch):
     monkeypatch.setattr(os, "cpu_count", lambda: 2)  # the presets with one worker per core, as snapshotted
 
 
-ADDED_SINCE = {"experiment": {"aloha"}}
+ADDED_SINCE = {"experiment": {"aloha"}, "evaluation budget": {"aloha-50"}}
 """presets added after the snapshot (nothing to compare them with)"""
 
 
@@ -116,7 +116,7 @@ def test_gazereg_presets_lists_every_preset_with_one_line(capsys):
         (
             "eval",
             "paper",
-            "['clean-10', 'clean-dim-2', 'clean-dim-noise-10', 'libero-spatial-25', 'robustness-50']",
+            "['aloha-50', 'clean-10', 'clean-dim-2', 'clean-dim-noise-10', 'libero-spatial-25', 'robustness-50']",
         ),
         ("collect", "smoke", "['demos-10x50', 'demos-2x2', 'demos-3x30']"),
     ],

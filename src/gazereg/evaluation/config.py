@@ -135,6 +135,23 @@ def libero_spatial_25() -> EvalConfig:
     )
 
 
+ALOHA_TASKS = ("AlohaTransferCube-v0", "AlohaInsertion-v0")
+"""Gym-Aloha's two tasks, as LeRobot's `aloha` env names them (`gazereg.envs.aloha.setup.TASKS`)"""
+
+
+def aloha_50() -> EvalConfig:
+    """Gym-Aloha's two tasks on setups 1000..1049 (the env's 400 steps, clean; the Aloha lane); one worker per
+    core."""
+    return EvalConfig(
+        env="aloha",
+        tasks=ALOHA_TASKS,
+        episodes=50,
+        seed_start=1000,
+        max_steps=400,
+        workers=os.cpu_count() or 2,
+    )
+
+
 def robustness_50() -> EvalConfig:
     """50 episodes per task of 200 steps under every condition of ROBUSTNESS_CONDITIONS; one worker per core."""
     return EvalConfig(
@@ -152,6 +169,7 @@ def presets() -> dict[str, Callable[[], EvalConfig]]:
         "clean-dim-2": clean_dim_2,
         "clean-dim-noise-10": clean_dim_noise_10,
         "libero-spatial-25": libero_spatial_25,
+        "aloha-50": aloha_50,
         "robustness-50": robustness_50,
     }
 

@@ -1,5 +1,5 @@
-"""The experiment's configuration and its named presets (smoke, quick, paper, sweep, full, libero,
-libero_smoke, aloha). Other commands' presets have names of their own kind (training recipes, evaluation and
+"""The experiment's configuration and its named presets on Meta-World (smoke, quick, paper, sweep, full; the
+other simulators' presets, libero, libero_smoke and aloha, are in `config_sims`, all in one `PRESETS`). Other commands' presets have names of their own kind (training recipes, evaluation and
 collection budgets, policy and GLC sizes); `gazereg presets` lists them all. What the presets cost and what
 they were sized from (measured): docs/presets.md.
 
@@ -19,7 +19,6 @@ from gazereg.aggregation import AggregationConfig
 from gazereg.envs.base import SimulatorName, check_simulator
 from gazereg.envs.metaworld.difficulty import draw_tasks
 from gazereg.evaluation.config import ROBUSTNESS_CONDITIONS, EvalConfig
-from gazereg.evaluation.config import presets as eval_presets
 from gazereg.gaze.sources.glc import GLCParams
 from gazereg.gaze.sources.visuomotor import VisuomotorParams
 from gazereg.runtime.config import Validated, option, require_entries, require_number
@@ -291,135 +290,12 @@ def full() -> ExperimentConfig:
     )
 
 
-def libero() -> ExperimentConfig:
-    """LIBERO-Spatial, the paper's benchmark (`bash scripts/libero_env.sh gazereg experiment --preset libero`):
-    baseline, gaze (visuomotor), cross-fitted glc and perturbed gaze, one training seed, its 10 tasks from the
-    agentview camera at 128 px (patches of 16 px: the 8 x 8 grid of the other presets), evaluated on initial
-    states 25..49 (the evaluation budget `libero-spatial-25`, 220 steps) clean, and on the first 5 of them per
-    task dimmed (`dim:0.7`) and with sensor noise (`gaussian_noise:0.5`): 250 pairs per arm clean, 50 per
-    perturbed condition.
-
-    Demonstrations: the expert on initial states 0..24 only (`demo_max_failures=0`: a failure is not replaced
-    by a state the evaluation uses); a task keeps fewer where the expert fails, and the report counts them.
-    glc: two fold GLCs (tasks 0-4 and 5-9), each trained 300 steps on the other half's demonstrations, so no
-    task's glc prior comes from a GLC that saw its gaze. Success-versus-steps is not evaluated
-    (`convergence_points=1`): a curve would cost another evaluation per checkpoint. Why 220 steps, and the
-    time on 2 cores: docs/presets.md."""
-    ev = eval_presets()["libero-spatial-25"]()
-    tasks = ev.tasks
-    t = cpu_train()
-    return ExperimentConfig(
-        out=Path("runs/libero"),
-        env="libero",
-        tasks=tasks,
-        camera="agentview_rgb",
-        image_size=128,
-        demos_per_task=ev.seed_start,  # the initial states below the evaluation's first
-        demo_max_failures=0,
-        heldout_per_task=2,
-        arms=("baseline", "gaze", "glc", "perturbed"),
-        glc_steps=300,
-        glc_folds=(tasks[: len(tasks) // 2], tasks[len(tasks) // 2 :]),
-        train=replace(
-            t,
-            steps=6000,
-            batch_size=32,
-            policy=dataclasses.replace(t.policy, image_hw=(128, 128), patch_size=16),
-        ),
-        parallel=2,
-        eval=replace(
-            ev, conditions=("clean", "dim:0.7", "gaussian_noise:0.5"), robustness_episodes=5, videos=1
-        ),
-        convergence_points=1,
-        convergence_episodes=ev.episodes,
-    )
-
-
-def libero_smoke() -> ExperimentConfig:
-    """Every stage of the `libero` preset at toy size (the slow test tests/envs/test_libero_experiment.py, in
-    the LIBERO venv): 2 tasks, 2 demonstrations each, 4 training steps, 2 evaluation episodes of 10 steps."""
-    ev = eval_presets()["libero-spatial-25"]()
-    tasks = ev.tasks[:2]
-    return replace(
-        libero(),
-        out=Path("runs/libero_smoke"),
-        tasks=tasks,
-        image_size=48,
-        demos_per_task=2,
-        heldout_per_task=1,
-        collect_workers=1,
-        prior_size=(32, 32),
-        glc=GLCParams(hop=8),
-        glc_steps=2,
-        glc_folds=((tasks[0],), (tasks[1],)),
-        train=replace(ci_train(), steps=4, gaze=GazeConfig(weight=0.1)),
-        parallel=1,
-        eval=replace(
-            ev,
-            tasks=tasks,
-            episodes=2,
-            robustness_episodes=1,
-            max_steps=10,
-            workers=1,
-            conditions=("clean", "dim:0.7", "gaussian_noise:0.5"),
-        ),
-        convergence_episodes=1,
-        figure_frames=2,
-    )
-
-
-ALOHA_TASKS = ("AlohaTransferCube-v0", "AlohaInsertion-v0")
-"""Gym-Aloha's two tasks, as LeRobot's `aloha` env names them (`gazereg.envs.aloha.setup.TASKS`)"""
-
-
-def aloha() -> ExperimentConfig:
-    """Gym-Aloha, the paper's bimanual benchmark (`bash scripts/aloha_lane.sh gazereg experiment --preset
-    aloha`): transfer cube and insertion from the `top` camera at 128 px (patches of 16 px), baseline, gaze
-    (visuomotor: the eyes lead each hand to its next target, cube then hand-over point; peg, socket, then the
-    meeting point) and the uniform control, one training seed; 50 scripted demonstrations per task on setups
-    0..49 (failed ones replaced from 50..69), 50 unseen evaluation episodes per task (setups 1000..1049) of the
-    env's 400 steps, clean. The arms, tasks and seeds are fixed; the training length was not tuned on Aloha."""
-    t = cpu_train()
-    return ExperimentConfig(
-        out=Path("runs/aloha"),
-        env="aloha",
-        tasks=ALOHA_TASKS,
-        camera="top",
-        image_size=128,
-        demos_per_task=50,
-        demo_max_failures=20,
-        heldout_per_task=2,
-        arms=("baseline", "gaze", "uniform"),
-        train=replace(
-            t,
-            steps=6000,
-            batch_size=32,
-            policy=dataclasses.replace(t.policy, image_hw=(128, 128), patch_size=16),
-            device="auto",
-        ),
-        parallel=2,
-        eval=EvalConfig(
-            env="aloha",
-            tasks=ALOHA_TASKS,
-            episodes=50,
-            seed_start=1000,
-            max_steps=400,
-            conditions=("clean",),
-            workers=os.cpu_count() or 2,
-            videos=1,
-        ),
-        convergence_points=1,
-        convergence_episodes=50,
-    )
-
-
 PRESETS = {
     "quick": quick,
     "smoke": smoke,
     "paper": paper,
     "full": full,
     "sweep": sweep,
-    "libero": libero,
-    "libero_smoke": libero_smoke,
-    "aloha": aloha,
 }
+"""every experiment preset by name: these, and the other simulators' (`config_sims`: libero, libero_smoke,
+aloha), which register themselves here when the package is imported"""

@@ -170,9 +170,7 @@ def across_processes(run: Run, kl: Tensor, valid: Tensor) -> Tensor:
         return kl
     n_local = valid.detach().to(device=kl.device, dtype=torch.float64).sum()
     total = float(run.acc.reduce(n_local.reshape(1), "sum").item())
-    if total == 0:
-        return kl
-    return kl * (float(n_local) * world / total)
+    return kl if total == 0 else kl * (float(n_local) * world / total)
 
 
 @torch.no_grad()

@@ -135,20 +135,24 @@ class AlohaEnv(gym.Env):
         self._cam_ids: dict[str, int] = {}
         self._geometry: dict[str, CameraGeometry] = {}
         if self.cameras:
-            m = self.physics_model
-            self._base_lights = LightState.capture(m)
-            self._renderer = FastRenderer(m, H, W, backend=self.gl_backend)
-            for c in self.cameras:
-                cid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, c)
-                if cid < 0:
-                    names = [m.camera(i).name for i in range(m.ncam)]
-                    raise KeyError(f"no camera {c!r} in Gym-Aloha's model; cameras: {names}")
-                self._cam_ids[c] = cid
+            self._make_renderer(H, W)
         self._setup_seed = int(seed)
         self._next_seed = int(seed)
         self._steps = 0
         self._reward = 0.0
         self._noise_rng = np.random.default_rng([self.noise_seed, self._setup_seed])
+
+    def _make_renderer(self, H: int, W: int) -> None:
+        """The offscreen renderer for `self.cameras` at H x W and their camera ids; the lights as loaded."""
+        m, mj = self.physics_model, self._mj
+        self._base_lights = LightState.capture(m)
+        self._renderer = FastRenderer(m, H, W, backend=self.gl_backend)
+        for c in self.cameras:
+            cid = mj.mj_name2id(m, mj.mjtObj.mjOBJ_CAMERA, c)
+            if cid < 0:
+                names = [m.camera(i).name for i in range(m.ncam)]
+                raise KeyError(f"no camera {c!r} in Gym-Aloha's model; cameras: {names}")
+            self._cam_ids[c] = cid
 
     # ----- model facts ------------------------------------------------------------------------------------
     def _ids(self) -> None:

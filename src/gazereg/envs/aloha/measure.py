@@ -16,6 +16,8 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from gazereg.envs.aloha.env import AlohaEnv
+from gazereg.envs.aloha.expert import AlohaExpert
 from gazereg.envs.aloha.setup import TASKS, resolve_task
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_json
@@ -23,9 +25,6 @@ from gazereg.runtime.io import atomic_write_json
 
 def measure(task: str, seeds: Sequence[int]) -> dict:
     """{"task", "setups", "successes", "failures": [{"seed", "max_reward", "steps"}], "steps_to_success"}"""
-    from gazereg.envs.aloha.env import AlohaEnv
-    from gazereg.envs.aloha.expert import AlohaExpert
-
     env = AlohaEnv(task, cameras=())
     failures, steps = [], []
     for seed in seeds:
