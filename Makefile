@@ -16,7 +16,7 @@ demo: setup
 demo-check: demo
 	$(PY) scripts/update_results.py runs/quick --check
 
-RUFF_PATHS := src tests benchmarks examples scripts lerobot_plugin tests_lerobot
+RUFF_PATHS := src tests benchmarks examples scripts lerobot_plugin tests_lerobot tests_aloha
 
 test: setup
 	$(VENV)/bin/ruff check $(RUFF_PATHS)
