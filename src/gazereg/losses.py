@@ -167,3 +167,22 @@ class GazeLossConfig:
 
     def __post_init__(self) -> None:
         check_eps(self.eps)
+
+
+def across_processes(kl: Tensor, valid: Tensor) -> Tensor:
+    """`kl` () (the mean over this process's valid frames; `valid` (B,) bool) rescaled to this process's share of
+    the mean over every process's valid frames: kl * n_local * world / n_global, so that averaging it over the
+    processes (DDP's gradient average, lerobot-train's log) gives sum over all valid frames / n_global. Returned
+    unchanged outside torch.distributed, with one process, or when no process has a valid frame."""
+    if not (torch.distributed.is_available() and torch.distributed.is_initialized()):
+        return kl
+    world = torch.distributed.get_world_size()
+    if world == 1:
+        return kl
+    n_local = valid.detach().to(device=kl.device, dtype=torch.float64).sum()
+    n_global = n_local.clone().reshape(1)
+    torch.distributed.all_reduce(n_global)  # a sum over the processes
+    total = float(n_global.item())
+    if total == 0:
+        return kl
+    return kl * (float(n_local) * world / total)

@@ -5,7 +5,7 @@ added to the policy's loss (`add_gaze_term`).
 
 Several processes (`accelerate launch --multi_gpu --num_processes N lerobot-train ...`, DDP): the gaze term is a
 mean over the valid frames of the GLOBAL batch, as in one process on the same batch. Each process's term is its
-sum over its own valid frames times N / (valid frames over all processes) (`across_processes`: one all-reduce of
+sum over its own valid frames times N / (valid frames over all processes) (`gazereg.losses.across_processes`: one all-reduce of
 the count per training forward, so every process must run the training forward at every step), so DDP's average of
 the processes' gradients and lerobot-train's average of the logged `loss/gaze_kl` are that global mean; a plain
 per-process mean would weight a frame by 1 / (its process's valid count) and differ whenever the processes hold
@@ -33,11 +33,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
 
-import torch
 from torch import Tensor
 
 from gazereg.integrations.gaze_mass import check_target_mass, gaze_mass_kl, gaze_mass_loss
-from gazereg.losses import gaze_kl, gaze_loss
+from gazereg.losses import across_processes, gaze_kl, gaze_loss
 from gazereg.patches import PatchGeometry
 
 from .errors import GazeUsageError, refusing
@@ -225,25 +224,6 @@ def gaze_term(
         rows = gaze_mass_kl(gaze, raw, mass, kind=kind) * valid
         return rows.sum() / valid.sum().clamp_min(1), rows
     return gaze_mass_loss(gaze, raw, mass, valid, kind=kind)[0], None
-
-
-def across_processes(kl: Tensor, valid: Tensor) -> Tensor:
-    """`kl` () (the mean over this process's valid frames; `valid` (B,) bool) rescaled to this process's share of
-    the mean over every process's valid frames: kl * n_local * world / n_global, so that averaging it over the
-    processes (DDP's gradient average, lerobot-train's log) gives sum over all valid frames / n_global. Returned
-    unchanged outside torch.distributed, with one process, or when no process has a valid frame."""
-    if not (torch.distributed.is_available() and torch.distributed.is_initialized()):
-        return kl
-    world = torch.distributed.get_world_size()
-    if world == 1:
-        return kl
-    n_local = valid.detach().to(device=kl.device, dtype=torch.float64).sum()
-    n_global = n_local.clone().reshape(1)
-    torch.distributed.all_reduce(n_global)  # a sum over the processes
-    total = float(n_global.item())
-    if total == 0:
-        return kl
-    return kl * (float(n_local) * world / total)
 
 
 def add_gaze_term(

@@ -7,7 +7,7 @@
     accelerate launch --multi_gpu --num_processes 2 -m gazereg.training.loop --preset ci ...   (DDP; CPU: gloo)
 
 Loss per step:  L = L_action + w(step) * mean_{valid b} KL(gaze_b || attention_b)
-(the mean over the valid samples of the global batch, also with several processes: `across_processes`)
+(the mean over the valid samples of the global batch, also with several processes: `losses.across_processes`)
 where attention_b is the action queries' attention to the gaze camera's patch tokens on `gaze.layers`
 (captured by an AttentionProbe, averaged over heads, queries and layers, renormalised over the patches) and
 gaze_b the stored prior mapped onto the policy's patch grid once when the data set is built. With
@@ -47,7 +47,7 @@ import torch
 from torch import Tensor, nn
 
 from gazereg.attention.probe import AttentionProbe
-from gazereg.losses import gaze_loss
+from gazereg.losses import across_processes, gaze_loss
 from gazereg.metrics import alignment_metrics
 from gazereg.policies import Policy
 from gazereg.runtime.config import parse, to_dict
@@ -143,7 +143,7 @@ def gaze_term(
             gaze_grid=built.gaze_grid,
             attention_grid=built.attention_grid,
         )
-        return across_processes(run, loss, batch["gaze_valid"]), info
+        return across_processes(loss, batch["gaze_valid"]), info
 
     attention = probe.distribution()
     kl_attention, ginfo = kl(attention if capture is None else attention.detach())
@@ -157,20 +157,6 @@ def gaze_term(
     kl_location, _ = kl(run.location_head(capture.features()))
     terms["loss/location_kl"] = float(kl_location.detach())
     return kl_location, terms
-
-
-def across_processes(run: Run, kl: Tensor, valid: Tensor) -> Tensor:
-    """`kl` () (the mean over this process's valid samples; `valid` (B,) bool) rescaled to this process's share of
-    the mean over the valid samples of the whole global batch: kl * n_local * processes / n_global. DDP averages
-    the processes' gradients and `Interval.means` their logged values, so both are then that global mean, as in
-    one process on the same batch (a plain per-process mean weights a sample by 1 / its process's valid count).
-    One all-reduce of the count; unchanged with one process or when no sample of the global batch is valid."""
-    world = run.acc.num_processes
-    if world == 1:
-        return kl
-    n_local = valid.detach().to(device=kl.device, dtype=torch.float64).sum()
-    total = float(run.acc.reduce(n_local.reshape(1), "sum").item())
-    return kl if total == 0 else kl * (float(n_local) * world / total)
 
 
 @torch.no_grad()
