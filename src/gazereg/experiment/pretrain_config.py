@@ -167,14 +167,16 @@ def finetune_flags(policy: PolicyConfig, prefix: str = "--train.policy.") -> lis
 
 # ----- presets ------------------------------------------------------------------------------------------------
 def ml45_policy() -> VLAConfig:
-    """The generalist's architecture, a first guess for 2 cores (not measured yet): width 192, 6 layers, 4
-    heads, 96 px images in 12 px patches (8 x 8 tokens), chunks of 8, 16 word tokens of instruction."""
-    return VLAConfig(dim=192, depth=6, heads=4, chunk=8, tokenizer="words", max_text_len=TEXT_TOKENS)
+    """The generalist's architecture: width 192, 4 layers, 4 heads (about 1.3 M parameters), 96 px images in
+    12 px patches (8 x 8 tokens), chunks of 8, 16 word tokens of instruction. Sized by the step time
+    benchmarks/bench_pretrain_size.py measures (docs/studies/pretraining.md): the whole pretraining must fit one
+    sitting on 2 cores, and every fine-tuning run of the study and `make demo` pays for its size."""
+    return VLAConfig(dim=192, depth=4, heads=4, chunk=8, tokenizer="words", max_text_len=TEXT_TOKENS)
 
 
 def ml45_train() -> TrainConfig:
     """`ml45_policy` trained 30,000 steps of batch 32 with the tuned recipe's learning rate 5e-4, checkpoints
-    every 2,000 steps (the newest 3 kept), on the GPU where there is one (a first guess, not measured); the
+    every 2,000 steps (the newest 3 kept), on the GPU where there is one; the
     tokenizer's vocabulary holds the held-out tasks' words too. Needs Meta-World (the held-out instructions)."""
     t = tuned_train()
     return replace(
@@ -194,9 +196,9 @@ def ml45_train() -> TrainConfig:
 
 def ml45() -> PretrainConfig:
     """The real pretraining: Meta-World ML45's 45 training tasks, 50 demonstrations each (300 steps at most, up
-    to 50 replacements of the expert's failures), `ml45_train`, then 10 evaluation episodes per task. Every
-    size is a first guess for 2 cores, to be measured and revised; `--train.stop-at N` pauses the training
-    stage with a checkpoint so it can run in sittings of under three hours."""
+    to 50 replacements of the expert's failures), `ml45_train`, then 10 evaluation episodes per task.
+    `--train.stop-at N` pauses the training stage with a checkpoint so it can run in sittings of under three
+    hours."""
     return PretrainConfig(out=Path("runs/pretrain"), tasks=ml45_split().train, train=ml45_train())
 
 
