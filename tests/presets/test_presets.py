@@ -55,7 +55,7 @@ def two_cores(monkeypatch):
     monkeypatch.setattr(os, "cpu_count", lambda: 2)  # the presets with one worker per core, as snapshotted
 
 
-ADDED_SINCE = {"experiment": {"aloha"}, "evaluation budget": {"aloha-50"}}
+ADDED_SINCE = {"experiment": {"aloha", "ml45_finetune", "ml45_scratch"}, "evaluation budget": {"aloha-50"}}
 """presets added after the snapshot (nothing to compare them with)"""
 
 

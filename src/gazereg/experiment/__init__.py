@@ -1,6 +1,7 @@
 """`gazereg experiment`: demos -> priors -> training -> evaluation -> report, stage by stage and resumable.
 
-`config` holds the configuration and its presets (`config_sims` the other simulators'), `arms` what each arm trains on, `demos` and `glc` the
+`config` holds the configuration and its presets (`config_sims` the other simulators', `config_finetune`
+the pretraining study's), `arms` what each arm trains on, `demos` and `glc` the
 demos stage's collections and the glc arm's GLC, `records` the saved config and the report's spec, `runner` the
 stages (see `gazereg.experiment.runner`), `finished` the one reader of a finished run folder or its archive
 (`read_run`), `pool` one report over folders that each ran some training seeds, `archive` a finished run's
@@ -12,6 +13,7 @@ Runs are named by `gazereg.report.ids.RunId` (arm, training seed, step).
 from gazereg.experiment.arms import PriorSpec, arm_prior
 from gazereg.experiment.cli import main
 from gazereg.experiment.config import PRESETS, ExperimentConfig, full, paper, quick, smoke
+from gazereg.experiment.config_finetune import ml45_finetune, ml45_scratch
 from gazereg.experiment.config_sims import libero, libero_smoke
 from gazereg.experiment.finished import FinishedRun, read_run
 from gazereg.experiment.runner import STAGES, Experiment
@@ -28,6 +30,8 @@ __all__ = [
     "libero",
     "libero_smoke",
     "main",
+    "ml45_finetune",
+    "ml45_scratch",
     "paper",
     "quick",
     "read_run",

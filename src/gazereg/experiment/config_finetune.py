@@ -1,0 +1,67 @@
+"""The experiment presets of the pretraining study (issue 36, docs/studies/pretraining.md): the ML45 generalist
+(`gazereg pretrain --preset ml45`, committed in `GENERALIST`) fine-tuned on ML45's five held-out tasks
+(`ml45_finetune`), and the same run from a fresh initialisation (`ml45_scratch`). They register in
+`gazereg.experiment.config.PRESETS` when the package is imported.
+
+    gazereg experiment --preset ml45_scratch  --out runs/ft10-scratch
+    gazereg experiment --preset ml45_finetune --out runs/ft10-pretrained
+    gazereg compare runs/ft10-scratch runs/ft10-pretrained
+    (50 demonstrations per task: --demos-per-task 50)
+
+Both collect the same demonstrations (setups 0.. of the held-out tasks, which the pretraining never saw) and
+evaluate on the same unseen setups (1,000..), so `gazereg compare` pairs their episodes; the architecture is
+the generalist's (`pretrain_config.ml45_policy`) in both, and so are the training recipe and its budget.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+from gazereg.envs.metaworld.ml45 import ml45_split
+from gazereg.evaluation.config import EvalConfig
+from gazereg.experiment.config import PRESETS, ExperimentConfig
+from gazereg.experiment.pretrain_config import held_out_instructions, ml45_policy
+from gazereg.training.config import tuned as tuned_train
+
+GENERALIST = Path("models/ml45")
+"""the committed generalist (relative to the repository root): `gazereg pretrain --preset ml45`'s policy
+folder (model.safetensors, config.json, tokenizer.json) with its manifest.json"""
+
+
+def ml45_finetune() -> ExperimentConfig:
+    """The generalist (`GENERALIST`) fine-tuned on ML45's 5 held-out tasks: 10 demonstrations per task, the
+    baseline arm (no gaze), the tuned recipe's learning rate 5e-4 and batch 32 for 3,000 steps on 2 threads
+    (one run), success at 3 checkpoints on 10 setups per task, and finally 25 unseen setups per task of at
+    most 200 steps (the experts need up to about 140), clean."""
+    t = tuned_train()
+    return ExperimentConfig(
+        out=Path("runs/ml45-finetune"),
+        tasks=ml45_split().test,
+        demos_per_task=10,
+        arms=("baseline",),
+        train=replace(
+            t,
+            steps=3000,
+            batch_size=32,
+            policy=ml45_policy(),
+            data=replace(t.data, extra_instructions=held_out_instructions()),
+            init_from=GENERALIST,
+            device="auto",
+        ),
+        parallel=1,
+        threads_per_run=2,
+        eval=EvalConfig(episodes=25, max_steps=200, conditions=("clean",)),
+        convergence_points=3,
+        convergence_episodes=10,
+    )
+
+
+def ml45_scratch() -> ExperimentConfig:
+    """`ml45_finetune` from a fresh initialisation instead of the generalist: the same demonstrations,
+    architecture, recipe, budget and evaluation setups."""
+    ft = ml45_finetune()
+    return replace(ft, out=Path("runs/ml45-scratch"), train=replace(ft.train, init_from=None))
+
+
+PRESETS.update({"ml45_finetune": ml45_finetune, "ml45_scratch": ml45_scratch})
