@@ -2,8 +2,9 @@
 
 import pytest
 
+from gazereg.report.convergence import ConvergencePoint, checkpoint_tally
 from gazereg.report.ids import RunId
-from gazereg.report.tables import checkpoint_tally, per_seed_table, run_of
+from gazereg.report.tables import per_seed_table, run_of
 
 
 def test_run_names_round_trip_in_the_on_disk_form():
@@ -31,14 +32,14 @@ def test_arm_names_cannot_hold_the_separators():
 
 def test_checkpoint_tally_pools_seeds_per_arm_and_step():
     points = [
-        (RunId("gaze", 0, 5), True),
-        (RunId("gaze", 1, 5), False),
-        (RunId("baseline", 0, 5), False),
-        (RunId("gaze", 0, 10), True),
+        ConvergencePoint(RunId("gaze", 0, 5), "reach-v3", 1000, True),
+        ConvergencePoint(RunId("gaze", 1, 5), "reach-v3", 1000, False),
+        ConvergencePoint(RunId("baseline", 0, 5), "reach-v3", 1000, False),
+        ConvergencePoint(RunId("gaze", 0, 10), "reach-v3", 1000, True),
     ]
     assert checkpoint_tally(points) == {"gaze": {5: (1, 2), 10: (1, 1)}, "baseline": {5: (0, 1)}}
     with pytest.raises(ValueError, match="names no training step"):
-        checkpoint_tally([(RunId("gaze", 0), True)])
+        checkpoint_tally([ConvergencePoint(RunId("gaze", 0), "reach-v3", 1000, True)])
 
 
 def test_per_seed_table_keeps_the_run_names():

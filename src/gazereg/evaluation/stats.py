@@ -3,7 +3,8 @@
 Evaluation arms share their episode seeds, so two policies' outcomes on the same seeds form pairs; the
 paired exact test (McNemar's, a binomial test on the discordant pairs) uses that. Fisher's exact test
 compares two success counts without pairing; `paired_rate_difference` says how large a paired difference in
-success rate is, with an interval.
+success rate is, with an interval. `bootstrap_steps_to_reach` gives the steps a training curve takes to reach
+a success rate an interval, resampling the evaluation units every arm and checkpoint share.
 """
 
 from __future__ import annotations
@@ -217,4 +218,118 @@ def unit_mean_difference(diffs: Sequence[float]) -> dict[str, Any]:
         "below": int((d < 0).sum()),
         "sign_flip_p": float((null >= abs(mean) - 1e-12).mean()),
         "p_floor": float((null >= null.max() - 1e-12).mean()),
+    }
+
+
+def resample_counts(units: int, resamples: int, seed: int) -> np.ndarray:
+    """How often each of `units` evaluation units is drawn in each bootstrap resample: `units` draws with
+    replacement per resample, from numpy's default Generator seeded with `seed` (so the same seed gives the
+    same resamples).
+
+    Returns int64 (1 + resamples, units): row 0 is the sample itself (every unit once), rows 1.. the resamples.
+    Applying one row to several curves at once is what keeps them paired."""
+    if units < 1 or resamples < 1:
+        raise ValueError(f"a bootstrap needs units >= 1 and resamples >= 1, got {units} and {resamples}")
+    draws = np.random.default_rng(seed).integers(0, units, size=(resamples, units))
+    flat = (draws + units * np.arange(resamples)[:, None]).ravel()
+    counts = np.bincount(flat, minlength=resamples * units).reshape(resamples, units)
+    return np.vstack([np.ones((1, units), dtype=np.int64), counts.astype(np.int64)])
+
+
+def first_crossings(steps: Sequence[int], reached: np.ndarray) -> np.ndarray:
+    """The first step of each row's curve that is at or above its target.
+
+    `reached`: bool (rows, checkpoints), whether the curve is at or above the target at each checkpoint of
+    `steps` (training steps, ascending). Returns float64 (rows,): that step, `inf` where no checkpoint is."""
+    s = np.asarray(steps, dtype=np.float64)
+    if reached.ndim != 2 or reached.shape[1] != len(s):
+        raise ValueError(f"reached must be (rows, {len(s)} checkpoints), got {reached.shape}")
+    return np.where(reached.any(axis=1), s[reached.argmax(axis=1)], np.inf)
+
+
+def _step_or_none(x: float) -> int | None:
+    return None if math.isinf(x) else int(x)
+
+
+def _percentiles(values: np.ndarray) -> list[int | None]:
+    """[2.5th, 97.5th] percentile (inverted CDF, so each is one of `values`) of steps, float64 with `inf` for
+    "not reached" (sorted last, returned as None)."""
+    lo, hi = np.quantile(values, [0.025, 0.975], method="inverted_cdf")
+    return [_step_or_none(float(lo)), _step_or_none(float(hi))]
+
+
+def crossing_summary(crossings: np.ndarray, reference: np.ndarray | None = None) -> dict[str, Any]:
+    """A first crossing and its bootstrap distribution. `crossings`: float64 (1 + resamples,) steps, row 0
+    the sample's own, `inf` = not reached (as `first_crossings` returns them).
+
+    Returns {"steps": the sample's crossing (None: not reached), "ci95": [2.5th, 97.5th percentile] of the
+    resamples' (None for a percentile that is "not reached"), "reached": the share of resamples with a
+    crossing}; with `reference` (another curve's crossings, the same shape and resamples) also
+    "minus_reference": {"steps": the sample's difference in steps (None unless both cross), "ci95": its
+    percentiles over the resamples in which both cross (None if none does), "both_reached": their share}."""
+    boot = crossings[1:]
+    out: dict[str, Any] = {
+        "steps": _step_or_none(float(crossings[0])),
+        "ci95": _percentiles(boot),
+        "reached": float(np.isfinite(boot).mean()),
+    }
+    if reference is not None:
+        both = np.isfinite(crossings) & np.isfinite(reference)  # row 0: the sample
+        diff = np.subtract(crossings, reference, out=np.full_like(crossings, np.inf), where=both)
+        out["minus_reference"] = {
+            "steps": _step_or_none(float(diff[0])),
+            "ci95": _percentiles(diff[1:][both[1:]]) if both[1:].any() else None,
+            "both_reached": float(both[1:].mean()),
+        }
+    return out
+
+
+def bootstrap_steps_to_reach(
+    steps: dict[str, Sequence[int]],
+    outcomes: dict[str, np.ndarray],
+    threshold: float,
+    reference: str | None = None,
+    resamples: int = 2000,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Paired bootstrap of the steps at which success-versus-steps curves first reach a target.
+
+    `outcomes[arm]`: bool (checkpoints, units), the arm's success on each evaluation unit at each of its
+    checkpoints `steps[arm]` (training steps, ascending); every arm has the same units in the same column
+    order, which pairs them. Each resample (`resample_counts`: units drawn with replacement, `seed`) is applied
+    to every arm and checkpoint alike; each curve (success rate = successes / units) is recomputed and its
+    first checkpoint at or above the target found (`first_crossings`). Targets: `threshold` (a success rate),
+    and the `reference` arm's success rate at its last checkpoint in the same resample (so the reference
+    reaches its own final by its last checkpoint in every resample).
+
+    Returns {"units", "resamples", "seed", "to_threshold": {arm: `crossing_summary`}, "to_reference_final":
+    {arm: `crossing_summary`} or None (no reference, or its final rate in the sample is 0: nothing to reach)},
+    each arm but the reference with its difference from the reference ("minus_reference")."""
+    if reference is not None and reference not in outcomes:
+        raise ValueError(f"reference arm {reference!r} has no outcomes (arms: {sorted(outcomes)})")
+    shapes = {arm: o.shape for arm, o in outcomes.items()}
+    units = {shape[1] for shape in shapes.values() if len(shape) == 2}
+    if len(units) != 1 or any(len(s) != 2 or s[0] != len(steps[a]) for a, s in shapes.items()):
+        raise ValueError(
+            f"outcomes must be (checkpoints, units) with one unit count for every arm, got {shapes}"
+        )
+    n = units.pop()
+    counts = resample_counts(n, resamples, seed)
+    sums = {arm: counts @ o.astype(np.int64).T for arm, o in outcomes.items()}  # (1 + resamples, checkpoints)
+    to_threshold = {arm: first_crossings(steps[arm], s / n >= threshold) for arm, s in sums.items()}
+    to_final = None
+    if reference is not None and sums[reference][0, -1] > 0:
+        final = sums[reference][:, -1:]  # the reference's final successes in each resample
+        to_final = {arm: first_crossings(steps[arm], s >= final) for arm, s in sums.items()}
+
+    def summaries(crossings: dict[str, np.ndarray]) -> dict[str, Any]:
+        ref = crossings.get(reference) if reference is not None else None
+        return {arm: crossing_summary(c, None if arm == reference else ref) for arm, c in crossings.items()}
+
+    return {
+        "units": n,
+        "resamples": resamples,
+        "seed": seed,
+        "to_threshold": summaries(to_threshold),
+        "to_reference_final": summaries(to_final) if to_final is not None else None,
     }

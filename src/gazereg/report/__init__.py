@@ -1,8 +1,9 @@
-"""The experiment's report: run identities (`ids`), tables and tests (`tables`), figures (`figures`), the
-assembled report (`build`), report.md and results blocks (`markdown`, with `sections`). Every number comes from
-the experiment's own records."""
+"""The experiment's report: run identities (`ids`), tables and tests (`tables`), the convergence analysis
+(`convergence`), figures (`figures`), the assembled report (`build`), report.md and results blocks (`markdown`,
+with `sections`). Every number comes from the experiment's own records."""
 
 from gazereg.report.build import ReportSpec, StageOutputs, build_report, write_report
+from gazereg.report.convergence import ConvergencePoint, checkpoint_tally, convergence, convergence_report
 from gazereg.report.figures import plot_attention, plot_convergence, plot_success
 from gazereg.report.ids import RunId
 from gazereg.report.markdown import (
@@ -13,8 +14,6 @@ from gazereg.report.markdown import (
     results_block,
 )
 from gazereg.report.tables import (
-    checkpoint_tally,
-    convergence,
     distance_table,
     distance_value,
     machine_summary,
@@ -29,12 +28,14 @@ from gazereg.report.tables import (
 )
 
 __all__ = [
+    "ConvergencePoint",
     "ReportSpec",
     "RunId",
     "StageOutputs",
     "build_report",
     "checkpoint_tally",
     "convergence",
+    "convergence_report",
     "distance_lines",
     "distance_table",
     "distance_value",

@@ -16,12 +16,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from gazereg.report.convergence import ConvergencePoint, convergence_report
 from gazereg.report.figures import plot_convergence, plot_success
 from gazereg.report.ids import RunId
 from gazereg.report.markdown import markdown
 from gazereg.report.tables import (
-    checkpoint_tally,
-    convergence,
     distance_table,
     distance_value,
     machine_summary,
@@ -121,7 +120,7 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
         distance.update(paired_distance_tests(records, reference=control))
         distance_seeds.update(unit_level_tests(records, "seed", control, distance_value()))
         verdicts += verdict(success_table(records), control, paired, levels=levels)
-    conv = convergence(checkpoint_tally(_convergence_points(spec, outputs)), spec.threshold)
+    conv = convergence_report(_convergence_points(spec, outputs), spec.threshold)
     figs = out / "figures"
     figs.mkdir(parents=True, exist_ok=True)
     plot_success(success, figs / "success.png")
@@ -225,13 +224,17 @@ def gaze_and_control(
     return [r for r in records if run_of(r).arm in ("gaze", control)]
 
 
-def _convergence_points(spec: ReportSpec, outputs: StageOutputs) -> list[tuple[RunId, bool]]:
-    """Clean success at every checkpoint: the intermediate ones' episodes, then the final checkpoints' on the
-    same setups (the first `convergence_episodes` of the final evaluation's), at the last training step."""
+def _convergence_points(spec: ReportSpec, outputs: StageOutputs) -> list[ConvergencePoint]:
+    """Clean success at every checkpoint, each episode with its unit (training seed, task, setup seed): the
+    intermediate ones' episodes, then the final checkpoints' on the same setups (the first
+    `convergence_episodes` of the final evaluation's), at the last training step."""
     last_seed = spec.eval_seed_start + min(spec.convergence_episodes, spec.eval_episodes)
-    points = [(run_of(r), bool(r["success"])) for r in outputs.checkpoint_episodes]
+    points = [
+        ConvergencePoint(run_of(r), r["task"], int(r["seed"]), bool(r["success"]))
+        for r in outputs.checkpoint_episodes
+    ]
     points += [
-        (run_of(r).at_step(spec.train_steps), bool(r["success"]))
+        ConvergencePoint(run_of(r).at_step(spec.train_steps), r["task"], int(r["seed"]), bool(r["success"]))
         for r in outputs.episodes
         if r["condition"] == "clean" and r["seed"] < last_seed
     ]

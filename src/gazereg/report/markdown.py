@@ -118,9 +118,57 @@ def _steps(n: int | None) -> str:
     return "not reached" if n is None else str(n)
 
 
+def _reach_cell(c: dict[str, Any]) -> str:
+    """A bootstrapped first crossing, `steps [lo, hi]`, each "not reached" where no checkpoint reaches it."""
+    lo, hi = c["ci95"]
+    return f"{_steps(c['steps'])} [{_steps(lo)}, {_steps(hi)}]"
+
+
+def _difference_cell(c: dict[str, Any]) -> str:
+    """An arm's crossing minus the baseline's, `+d [lo, hi]` steps; "-" unless both reach it in the sample."""
+    d = c.get("minus_reference")
+    if d is None or d["steps"] is None or d["ci95"] is None:
+        return "-"
+    return f"{d['steps']:+d} [{d['ci95'][0]:+d}, {d['ci95'][1]:+d}]"
+
+
+def bootstrap_lines(conv: dict[str, Any]) -> list[str]:
+    """The steps to the baseline's final success and to the threshold with their paired bootstrap intervals,
+    one row per arm; nothing for a report made before the convergence carried them."""
+    boot = conv.get("bootstrap")
+    if not boot:
+        return []
+    final, threshold = boot["to_baseline_final"], boot["to_threshold"]
+    head = ["arm"]
+    if final is not None:
+        head += [f"steps to baseline's final ({conv['baseline_final']:.2f})", "reached", "minus baseline's"]
+    head += [f"steps to {conv['threshold']:.2f}", "reached"]
+    rows = []
+    for arm, t in threshold.items():
+        cells = [arm]
+        if final is not None:
+            cells += [_reach_cell(final[arm]), f"{final[arm]['reached']:.2f}", _difference_cell(final[arm])]
+        rows.append("| " + " | ".join([*cells, _reach_cell(t), f"{t['reached']:.2f}"]) + " |")
+    tail = "; minus baseline's: the arm's steps minus the baseline's, over the resamples in which both do"
+    return [
+        f"Steps to reach a success rate, with a paired bootstrap: the {boot['units']} evaluation units "
+        f"{boot['unit']}, which every arm and checkpoint evaluate, drawn with replacement {boot['resamples']} "
+        f"times (seed {boot['seed']}), each draw applied to every arm and checkpoint alike (and to the "
+        "baseline's final rate). A cell is the first checkpoint at or above the rate [2.5th, 97.5th percentile "
+        'over the resamples]; "not reached": no checkpoint up to the arm\'s last reaches it. Reached: the share '
+        f"of resamples in which it does{tail if final is not None else ''}.",
+        "",
+        "| " + " | ".join(head) + " |",
+        "|---|" + "---|" * (len(head) - 1),
+        *rows,
+        "",
+    ]
+
+
 def convergence_lines(report: dict[str, Any]) -> list[str]:
     """Clean success at each checkpoint, steps to the threshold and to the baseline's final success ("not
-    reached" when never crossed); nothing when the run evaluated only its final checkpoint (no curve)."""
+    reached" when never crossed), then those steps with their paired bootstrap intervals (`bootstrap_lines`);
+    nothing when the run evaluated only its final checkpoint (no curve)."""
     conv = report.get("convergence")
     if not conv:
         return []
@@ -140,7 +188,7 @@ def convergence_lines(report: dict[str, Any]) -> list[str]:
             + " | ".join(f"{r:.2f}" for r in c["rates"])
             + f" | {_steps(c['steps_to_threshold'])} | {_steps(c.get('steps_to_baseline_final'))} |"
         )
-    return [*lines, ""]
+    return [*lines, "", *bootstrap_lines(conv)]
 
 
 def distance_lines(report: dict[str, Any], conds: list[str]) -> list[str]:

@@ -1,4 +1,5 @@
-"""The experiment's numbers: success tables with Wilson intervals, paired tests, distances, convergence.
+"""The experiment's numbers: success tables with Wilson intervals, paired tests, distances (the convergence
+analysis is `report.convergence`).
 
 Everything is computed from the experiment's own records (evaluation episodes, training metrics); no number
 is typed in. Arms trained with several seeds are pooled over seeds (their evaluation episodes pair by
@@ -12,7 +13,7 @@ import os
 import platform
 import statistics
 from collections import defaultdict
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterator
 from typing import Any, Literal
 
 import torch
@@ -22,7 +23,6 @@ from gazereg.evaluation.stats import (
     mcnemar_exact,
     paired_mean_difference,
     paired_rate_difference,
-    steps_to_threshold,
     unit_mean_difference,
     wilson,
 )
@@ -206,42 +206,6 @@ def paired_distance_tests(
     setup seed): mean difference (negative: closer than the reference), 95% interval, permutation p."""
     pairs = paired_by_setup(records, distance_value(key), reference)
     return {name: paired_mean_difference(x, y) for name, _, x, y in pairs}
-
-
-def checkpoint_tally(points: Iterable[tuple[RunId, bool]]) -> dict[str, dict[int, tuple[int, int]]]:
-    """{arm: {training step: (successes, episodes)}} pooled over training seeds, from (run at a checkpoint,
-    success) pairs; every run must name its step. Arms and steps keep the order they first appear in."""
-    cells: dict[str, dict[int, list[int]]] = {}
-    for run, success in points:
-        if run.step is None:
-            raise ValueError(f"run {run} names no training step: a convergence point needs one")
-        cell = cells.setdefault(run.arm, {}).setdefault(run.step, [0, 0])
-        cell[0] += int(success)
-        cell[1] += 1
-    return {arm: {step: (k, n) for step, (k, n) in pts.items()} for arm, pts in cells.items()}
-
-
-def convergence(curves: dict[str, dict[int, tuple[int, int]]], threshold: float) -> dict[str, Any]:
-    """curves: {arm: {step: (successes, n)}} -> rates, steps to `threshold`, and each arm's steps to reach the
-    baseline's final success rate."""
-    out: dict[str, Any] = {"threshold": threshold, "arms": {}}
-    for arm, pts in curves.items():
-        steps = sorted(pts)
-        rates = [pts[s][0] / pts[s][1] for s in steps]
-        out["arms"][arm] = {
-            "steps": steps,
-            "rates": rates,
-            "ci95": [list(wilson(*pts[s])) for s in steps],
-            "steps_to_threshold": steps_to_threshold(steps, rates, threshold),
-        }
-    if "baseline" in out["arms"] and out["arms"]["baseline"]["rates"]:
-        final = out["arms"]["baseline"]["rates"][-1]
-        out["baseline_final"] = final
-        for c in out["arms"].values():
-            c["steps_to_baseline_final"] = (
-                steps_to_threshold(c["steps"], c["rates"], final) if final > 0 else None
-            )
-    return out
 
 
 def overlap(a: list[float], b: list[float]) -> bool:
