@@ -106,6 +106,16 @@ BAD_INPUTS = [
     (["priors", "--aggregation.past", "-1"], 2, "--aggregation.past must be an integer >= 0, got -1"),
     (["priors", "--aggregation.kernel", "box"], 2, "--aggregation.kernel must be one of uniform, gaussian"),
     (["experiment", "--aggregation.past", "-1"], 2, "--aggregation.past must be an integer >= 0, got -1"),
+    (
+        ["train", "--gaze.queries", "vision"],
+        2,
+        "--gaze.queries must be one of action, language, both, got 'vision'",
+    ),
+    (
+        ["experiment", "--preset", "smoke", "--out", "{tmp}/exp", "--train.gaze.queries", "text"],
+        2,
+        "--train.gaze.queries must be one of action, language, both, got 'text'",
+    ),
     # layers the policy does not have: refused when the config is built
     (
         ["train", "--preset", "ci", "--gaze.layers", "7"],

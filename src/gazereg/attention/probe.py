@@ -4,7 +4,9 @@ Model code that computes attention calls `tap(layer, q, k, mask, scale)` with it
 when no probe is active this is a single context-variable lookup. Inside `with AttentionProbe(...)`, the probe
 recomputes softmax(q k^T * scale + mask) for the selected layers and query rows only (over all keys, so the
 probabilities are exactly the model's), keeps the columns of the selected keys (one camera's patches),
-and `distribution()` reduces them over heads, queries and layers and renormalises over those keys.
+and `distribution()` reduces them over heads, queries and layers and renormalises over those keys. Which
+tokens are the queries is a policy's choice named by a `QuerySet` (the action queries, the instruction's
+tokens, or both); per-sample query weights (`ProbeSpec.query_weights`) leave out rows such as padding tokens.
 
 The forward itself is untouched: the model keeps its fused attention kernel, and its outputs are
 bit-identical with and without the probe. Models whose attention code cannot call `tap` plug in through
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import enum
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -32,6 +35,19 @@ _ACTIVE: contextvars.ContextVar[AttentionProbe | None] = contextvars.ContextVar(
 Index = slice | Sequence[int] | Tensor
 
 
+class QuerySet(str, enum.Enum):
+    """Whose attention the gaze term reads (`--gaze.queries`): the action queries (the default), the
+    instruction's language tokens (padding excluded), or both (every query row weighted equally)."""
+
+    ACTION = "action"
+    LANGUAGE = "language"
+    BOTH = "both"
+
+
+QUERY_SETS: tuple[str, ...] = tuple(q.value for q in QuerySet)
+"""the `--gaze.queries` values, in QuerySet order"""
+
+
 @dataclass(frozen=True)
 class ProbeSpec:
     """Which attention to capture.
@@ -41,12 +57,16 @@ class ProbeSpec:
     keys: key positions of one camera's patch tokens, row-major over its patch grid: a slice, a list,
         a (n_keys,) tensor, or a (B, n_keys) tensor when positions differ per sample.
     reduce: how heads, queries and layers are combined before renormalising over the keys.
+    query_weights: None (every query row counts equally: a plain mean) or (B, n_queries) non-negative
+        weights aligned with `queries`, e.g. 1 for an instruction's real tokens and 0 for its padding; the
+        mean over query rows is then the weighted mean, per sample. Every sample needs a positive weight.
     """
 
     queries: Index
     keys: Index
     layers: tuple[int, ...] | None = None
     reduce: Literal["mean"] = "mean"
+    query_weights: Tensor | None = None
 
 
 def _positions(index: Index, length: int, device: torch.device) -> Tensor:
@@ -205,7 +225,22 @@ class AttentionProbe:
         else:
             sel = probs[..., _positions(keys, probs.shape[-1], probs.device)]
         self._rows[layer] = sel
-        self._patch_mass[layer] = sel.sum(-1).mean(dim=(1, 2)).detach()
+        self._patch_mass[layer] = self._mean_queries(sel.sum(-1)).detach()
+
+    def _mean_queries(self, x: Tensor) -> Tensor:
+        """(B, H, n_queries, *rest) -> (B, *rest): the mean over heads, then over query rows, weighted by
+        `spec.query_weights` when given (None: the plain mean over heads and rows)."""
+        w = self.spec.query_weights
+        if w is None:
+            return x.mean(dim=(1, 2))
+        if w.shape != (x.shape[0], x.shape[2]):
+            raise ValueError(
+                f"query weights have shape {tuple(w.shape)}, the attention has batch {x.shape[0]} and "
+                f"{x.shape[2]} query rows"
+            )
+        w = w.to(device=x.device, dtype=x.dtype)
+        w = (w / w.sum(1, keepdim=True)).reshape(*w.shape, *(1,) * (x.ndim - 3))
+        return (x.mean(1) * w).sum(1)
 
     @property
     def layers(self) -> list[int]:
@@ -216,7 +251,8 @@ class AttentionProbe:
         return self._rows[layer]
 
     def patch_mass(self) -> Tensor:
-        """(B,) mean attention mass the queries put on the selected keys (before renormalisation)."""
+        """(B,) mean attention mass the queries put on the selected keys (before renormalisation; weighted
+        like `mean_rows`)."""
         self._require()
         return torch.stack([self._patch_mass[i] for i in self.layers]).mean(0)
 
@@ -235,10 +271,11 @@ class AttentionProbe:
                 )
 
     def mean_rows(self) -> Tensor:
-        """(B, n_keys): attention averaged over heads, queries and layers, NOT renormalised (its row sum is the
-        mass on the keys, in [0, 1] for distinct keys); differentiable."""
+        """(B, n_keys): attention averaged over heads, queries (weighted by `spec.query_weights` when given)
+        and layers, NOT renormalised (its row sum is the mass on the keys, in [0, 1] for distinct keys);
+        differentiable."""
         self._require()
-        return torch.stack([self._rows[i].mean(dim=(1, 2)) for i in self.layers]).mean(0)
+        return torch.stack([self._mean_queries(self._rows[i]) for i in self.layers]).mean(0)
 
     def distribution(self, eps: float = 1e-12) -> Tensor:
         """(B, n_keys): attention averaged over heads, queries and layers, renormalised over the keys."""

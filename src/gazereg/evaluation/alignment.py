@@ -4,6 +4,11 @@ For every frame of the given episodes: the action queries' attention to one came
 heads, queries and the chosen layers, renormalised), the gaze prior on the same patch grid, and the patches
 around the task object's projected position (from the simulator's per-frame extras). Metrics: KL, CC, SIM,
 NSS, AUC-Judd against gaze, and the attention mass on the object region next to its chance level.
+
+Whose attention: the action queries', unless the caller names the query set the run trained
+(`--gaze.queries language` or `both`: the instruction's real tokens, padding left out, or both sets of rows).
+The experiment passes its training config's query set, the same for every arm (the baseline included), so the
+arms' alignment compares the same rows; a run trained on the default measures exactly what it did before.
 """
 
 from __future__ import annotations
@@ -15,7 +20,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from gazereg.attention.probe import AttentionProbe
+from gazereg.attention.probe import AttentionProbe, QuerySet
 from gazereg.data.dataset import EpisodeDataset
 from gazereg.data.store import EpisodeStore
 from gazereg.metrics import alignment_metrics, mass_in_region
@@ -44,9 +49,11 @@ def attention_maps(
     layers: Sequence[int] | None = None,
     object_key: str = "obj_uv",
     batch_size: int = 256,
+    queries: QuerySet = QuerySet.ACTION,
 ) -> dict[str, Tensor]:
     """Attention (N, P), gaze (N, P) + valid (N,) if `prior`, object region (N, P) if the extras have it,
-    and the (episode, t) of every row."""
+    and the (episode, t) of every row. `queries`: whose attention (module docstring; default the action
+    queries, with one spec for every batch; language / both: a spec per batch from its text mask)."""
     policy.eval()
     cfg = policy.config
     ds = EpisodeDataset(
@@ -59,12 +66,16 @@ def attention_maps(
         gaze_camera=camera if prior else None,
         geometry=policy.geometry(camera) if prior else None,
     )
-    spec = policy.gaze_probe_spec(camera, layers)
+    queries = QuerySet(queries)
+    spec = policy.probe_spec(camera, layers) if queries is QuerySet.ACTION else None
     attn, gaze, valid, ep_t = [], [], [], []
     gen = torch.Generator().manual_seed(0)
     for start in range(0, len(ds), batch_size):
         batch = ds.__getitems__(range(start, min(len(ds), start + batch_size)))
-        with AttentionProbe(policy, spec, adapter="tap") as probe:
+        batch_spec = (
+            spec if spec is not None else policy.probe_spec(camera, layers, queries, batch["text_mask"])
+        )
+        with AttentionProbe(policy, batch_spec, adapter="tap") as probe:
             policy(batch, generator=gen)
         attn.append(probe.distribution().float())
         if prior:

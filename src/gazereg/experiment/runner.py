@@ -313,7 +313,9 @@ class Experiment:
         report, maps_by_run = {}, {}
         for run, ckpt in self.final_checkpoints(results).items():
             policy = load_policy(ckpt)
-            maps = attention_maps(policy, store, episodes, c.camera, gaze, c.train.gaze.layers)
+            maps = attention_maps(
+                policy, store, episodes, c.camera, gaze, c.train.gaze.layers, queries=c.train.gaze.query_set
+            )
             report[str(run)] = alignment_report(maps)
             maps_by_run[run] = (policy, maps)
         figure = self.attention_figure(store, maps_by_run, gaze)

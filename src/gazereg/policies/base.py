@@ -16,7 +16,9 @@ Life cycle as the trainer drives it:
     policy.write_pretrained(folder) / Policy.from_pretrained(folder)
 
 and evaluation: `from_pretrained`, `reset()` at every episode start, `select_action(observation,
-instruction)`, `gaze_probe_spec(camera)` and `geometry(camera)` for attention overlays.
+instruction)`, `gaze_probe_spec(camera)` and `geometry(camera)` for attention overlays. Whose attention is
+read (`--gaze.queries`, a `QuerySet`) goes through `probe_spec`, which refuses a query set the policy does not
+list in `gaze_query_sets` (every policy gives the action queries).
 
 The data contract (`gazereg.data.dataset.EpisodeDataset`): a batch holds `image.<camera>` uint8
 (B, H, W, 3) stored frames for every camera in `config.cameras`, `state` float32 (B, S), `action` float32
@@ -42,7 +44,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from gazereg.attention.probe import ProbeSpec
+from gazereg.attention.probe import ProbeSpec, QuerySet
 from gazereg.data.dataset import StoreInfo
 from gazereg.patches import PatchGeometry
 from gazereg.runtime.errors import UsageError
@@ -160,6 +162,8 @@ class Policy(nn.Module, ABC):
     the parameters of a resolved config (drawing initial values from torch's global RNG)."""
 
     config_class: ClassVar[type[PolicyConfig]] = PolicyConfig
+    gaze_query_sets: ClassVar[frozenset[QuerySet]] = frozenset({QuerySet.ACTION})
+    """the query sets `gaze_probe_spec` can build (`--gaze.queries`); a policy that gives more lists them"""
 
     def __init__(self, config: PolicyConfig, tokenizer: PolicyTokenizer):
         super().__init__()
@@ -196,10 +200,44 @@ class Policy(nn.Module, ABC):
         end); raises ValueError naming the bad ids."""
 
     @abstractmethod
-    def gaze_probe_spec(self, camera: str, layers: Sequence[int] | None = None) -> ProbeSpec:
-        """Which attention the gaze term reads: the action queries' attention to `camera`'s N patch tokens
+    def gaze_probe_spec(
+        self,
+        camera: str,
+        layers: Sequence[int] | None = None,
+        queries: QuerySet = QuerySet.ACTION,
+        text_mask: Tensor | None = None,
+    ) -> ProbeSpec:
+        """Which attention the gaze term reads: the `queries` tokens' attention to `camera`'s N patch tokens
         (row-major over `geometry(camera)`'s grid) on `resolve_layers(layers)`; the policy's attention code
-        calls `gazereg.attention.tap` for these layers."""
+        calls `gazereg.attention.tap` for these layers. The action queries need no batch; a query set with
+        the instruction's tokens needs the batch's `text_mask` (B, L) bool and returns (B, n_queries) query
+        weights that leave out padding. Callers go through `probe_spec`, which calls this with (camera,
+        layers) only for the action queries, so a policy giving just those may keep that signature."""
+
+    def probe_spec(
+        self,
+        camera: str,
+        layers: Sequence[int] | None = None,
+        queries: QuerySet = QuerySet.ACTION,
+        text_mask: Tensor | None = None,
+    ) -> ProbeSpec:
+        """`gaze_probe_spec` for query set `queries`; raises UsageError (one line) for a query set the policy
+        does not list in `gaze_query_sets`, before any forward."""
+        queries = QuerySet(queries)
+        if queries is QuerySet.ACTION:
+            return self.gaze_probe_spec(camera, layers)
+        self.require_query_set(queries)
+        return self.gaze_probe_spec(camera, layers, queries, text_mask)
+
+    @classmethod
+    def require_query_set(cls, queries: QuerySet) -> None:
+        """UsageError (one line) unless this policy type gives query set `queries` (`gaze_query_sets`)."""
+        if QuerySet(queries) not in cls.gaze_query_sets:
+            can = ", ".join(q.value for q in QuerySet if q in cls.gaze_query_sets)
+            raise UsageError(
+                f"the {cls.config_class.type} policy cannot regularize the attention of "
+                f"{QuerySet(queries).value} queries; it gives {can} only"
+            )
 
     def layer_module(self, layer: int) -> nn.Module:
         """The module computing transformer layer `layer` (a `resolve_layers` id) for every token: its output

@@ -25,8 +25,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, ClassVar, Literal, get_args
 
+from gazereg.attention.probe import QUERY_SETS, QuerySet
 from gazereg.losses import Divergence
-from gazereg.policies import POLICY_CHOICE, PolicyConfig
+from gazereg.policies import POLICY_CHOICE, PolicyConfig, policy_class
 from gazereg.policies.vla.configuration_vla import VLAConfig
 from gazereg.policies.vla.configuration_vla import large as large_policy
 from gazereg.runtime.config import Validated, option, require_choice, require_number
@@ -116,10 +117,15 @@ class GazeConfig(Validated):
     read from the image tokens' features of the last of `layers`), the location control that gives the
     policy the gaze's location information without supervising attention (gazereg.training.location); the
     attention KL is then logged as a diagnostic only"""
+    queries: str = "action"  # one of QUERY_SETS (`query_set` is the typed value); a str like `target`
+    """whose attention to the patches the gaze term regularizes: action (the action queries), language (the
+    instruction's real tokens, padding left out) or both (those rows together, each weighing the same);
+    language and both need a policy that gives them (the reference VLA)"""
 
     def validate(self, prefix: str) -> None:
         require_number(self.weight, f"{prefix}weight", 0)
         require_choice(self.target, f"{prefix}target", GAZE_TARGETS)
+        require_choice(self.queries, f"{prefix}queries", QUERY_SETS)
         require_choice(self.schedule, f"{prefix}schedule", get_args(WeightKind))
         require_number(self.warmup_steps, f"{prefix}warmup_steps", 0, integer=True)
         require_number(self.final_frac, f"{prefix}final_frac", 0, 1)
@@ -128,6 +134,11 @@ class GazeConfig(Validated):
         require_choice(self.divergence, f"{prefix}divergence", get_args(Divergence))
         require_number(self.patch_eps, f"{prefix}patch_eps", 0, open_low=True)
         require_number(self.loss_eps, f"{prefix}loss_eps", 0, open_low=True)
+
+    @property
+    def query_set(self) -> QuerySet:
+        """`queries` as the typed value the policy's `probe_spec` takes."""
+        return QuerySet(self.queries)
 
 
 @dataclass(frozen=True)
@@ -212,6 +223,11 @@ class TrainConfig(Validated):
         require_choice(self.mixed_precision, f"{prefix}mixed_precision", get_args(Precision))
         require_choice(self.logger, f"{prefix}logger", get_args(LoggerKind))
         check_layers(self.gaze.layers, self.policy, prefix)
+        if self.gaze.query_set is not QuerySet.ACTION:  # one the policy cannot give: refused before any work
+            try:
+                policy_class(self.policy.type).require_query_set(self.gaze.query_set)
+            except UsageError as e:
+                raise UsageError(f"{option(prefix + 'gaze.queries')} {self.gaze.queries}: {e}") from e
 
 
 def check_layers(layers: tuple[int, ...], policy: PolicyConfig, prefix: str = "") -> None:
@@ -235,13 +251,14 @@ def check_layers(layers: tuple[int, ...], policy: PolicyConfig, prefix: str = ""
 def upgrade_saved(saved: dict[str, Any]) -> dict[str, Any]:
     """A saved TrainConfig dict (`to_dict` as JSON) with the options added since filled in with the value
     that reproduces how it ran: gaze.target "attention" (runs saved before the option existed regularized
-    attention), data.extra_instructions empty. For comparisons with a new config (resume, an experiment
-    folder)."""
+    attention), gaze.queries "action" (they regularized the action queries), data.extra_instructions empty.
+    For comparisons with a new config (resume, an experiment folder)."""
     gaze, data = saved.get("gaze"), saved.get("data")
     if isinstance(data, dict) and "extra_instructions" not in data:
         saved = {**saved, "data": {**data, "extra_instructions": []}}
-    if isinstance(gaze, dict) and "target" not in gaze:
-        return {**saved, "gaze": {**gaze, "target": "attention"}}
+    if isinstance(gaze, dict):
+        added = {k: v for k, v in (("target", "attention"), ("queries", "action")) if k not in gaze}
+        return {**saved, "gaze": {**gaze, **added}} if added else saved
     return saved
 
 

@@ -9,7 +9,8 @@
 Loss per step:  L = L_action + w(step) * mean_{valid b} KL(gaze_b || attention_b)
 (the mean over the valid samples of the global batch, also with several processes: `losses.across_processes`)
 where attention_b is the action queries' attention to the gaze camera's patch tokens on `gaze.layers`
-(captured by an AttentionProbe, averaged over heads, queries and layers, renormalised over the patches) and
+(captured by an AttentionProbe, averaged over heads, queries and layers, renormalised over the patches;
+`--gaze.queries language` / `both`: the instruction's real tokens' rows instead / as well) and
 gaze_b the stored prior mapped onto the policy's patch grid once when the data set is built. With
 `--gaze.target features` (the location control, gazereg.training.location) attention_b is replaced by a
 training-only head's distribution over the same patches, read from the image tokens' features; the attention
@@ -56,7 +57,7 @@ from gazereg.training.checkpoint import prune_checkpoints, save_checkpoint
 from gazereg.training.config import PRESETS, TrainConfig
 from gazereg.training.location import HEAD_NAME, FeatureCapture, LocationHead, average_gradients
 from gazereg.training.schedule import step_generator
-from gazereg.training.setup import Run, setup
+from gazereg.training.setup import Run, gaze_spec, setup
 
 log = logging.getLogger(__name__)
 
@@ -88,14 +89,15 @@ def step(run: Run, step: int, batch: dict[str, Tensor]) -> StepOutput:
     cfg, acc = run.cfg, run.acc
     batch = {k: v.to(acc.device, non_blocking=True) for k, v in batch.items()}
     gen = step_generator(cfg.seed, step, acc.process_index, acc.device)
-    w = run.gaze_weight(step) if run.gaze_spec is not None else 0.0
+    spec = run.batch_gaze_spec(batch)  # run.gaze_spec itself for the action queries
+    w = run.gaze_weight(step) if spec is not None else 0.0
     head = run.location_head
     with contextlib.ExitStack() as stack:
         probe = capture = None
-        if run.gaze_spec is not None:
-            probe = stack.enter_context(AttentionProbe(run.model, run.gaze_spec, adapter="tap"))
-        if head is not None and run.gaze_spec is not None:
-            capture = stack.enter_context(FeatureCapture(run.policy, run.gaze_spec))
+        if spec is not None:
+            probe = stack.enter_context(AttentionProbe(run.model, spec, adapter="tap"))
+        if head is not None and spec is not None:
+            capture = stack.enter_context(FeatureCapture(run.policy, spec))
         stack.enter_context(run.autocast())
         loss, _ = run.model(batch, generator=gen, shift=cfg.shift)
     terms = {"loss/action": float(loss.detach())}
@@ -180,7 +182,7 @@ def evaluate_batch(
         with contextlib.ExitStack() as stack:
             probe = capture = None
             if gaze_camera is not None and "gaze" in batch:
-                spec = policy.gaze_probe_spec(gaze_camera, cfg.gaze.layers)
+                spec = gaze_spec(policy, gaze_camera, cfg.gaze, batch["text_mask"].to(policy.device))
                 probe = stack.enter_context(AttentionProbe(policy, spec, adapter="tap"))
                 capture = stack.enter_context(FeatureCapture(policy, spec)) if head is not None else None
             loss, _ = policy(batch, generator=gen)
@@ -297,7 +299,8 @@ def log_record(run: Run, done: int, last: StepOutput, interval: Interval) -> dic
 
 def log_start(run: Run) -> None:
     g = run.cfg.gaze
-    gaze = f"{g.prior} on {run.built.gaze_camera}, target {g.target}" if run.gaze_spec is not None else "off"
+    on = f"{g.prior} on {run.built.gaze_camera}, target {g.target}, queries {g.queries}"
+    gaze = on if run.gaze_spec is not None else "off"
     log.info(
         "policy %s: %d parameters; %d training samples; %d process(es) on %s; gaze %s",
         run.policy.name,

@@ -25,7 +25,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from gazereg.attention.probe import ProbeSpec
+from gazereg.attention.probe import ProbeSpec, QuerySet
 from gazereg.data.dataset import (
     EpisodeDataset,
     StepBatchSampler,
@@ -43,7 +43,7 @@ from gazereg.runtime.hardware import native_bf16
 from gazereg.runtime.io import sweep_stale_temps
 from gazereg.runtime.seeding import seed_everything
 from gazereg.training.checkpoint import CheckpointData, latest_checkpoint, read_resumable, restore_checkpoint
-from gazereg.training.config import EXECUTION_KEYS, TrainConfig, upgrade_saved
+from gazereg.training.config import EXECUTION_KEYS, GazeConfig, TrainConfig, upgrade_saved
 from gazereg.training.ema import EMA
 from gazereg.training.guards import check_batch_size, gaze_camera_for
 from gazereg.training.init_from import init_policy, init_record, read_init, write_init_record
@@ -156,7 +156,8 @@ class Run:
     metrics: MetricsFile
     logger: NullLogger
     gaze_spec: ProbeSpec | None
-    """the probed attention when the gaze term runs (a prior and gaze.enabled), else None"""
+    """the probed attention when the gaze term runs (a prior and gaze.enabled), else None; with
+    gaze.queries language / both its query weights are the episodes', so steps use `batch_gaze_spec`"""
     gaze_weight: WeightSchedule
     eval_batches: dict[str, dict[str, Tensor]]
     """fixed batches for `evaluate`: 'val' (or 'train' without validation episodes)"""
@@ -174,6 +175,13 @@ class Run:
     @property
     def run_dir(self) -> Path:
         return Path(self.cfg.run_dir)
+
+    def batch_gaze_spec(self, batch: dict[str, Tensor]) -> ProbeSpec | None:
+        """The probed attention for `batch`: `gaze_spec` itself for the action queries (built once), else the
+        spec of this batch's instruction tokens (its text_mask (B, L) weighs out the padding)."""
+        if self.gaze_spec is None or self.cfg.gaze.query_set is QuerySet.ACTION:
+            return self.gaze_spec
+        return gaze_spec(self.policy, str(self.built.gaze_camera), self.cfg.gaze, batch["text_mask"])
 
     def eval_policy(self) -> Policy:
         """The weights evaluations use: the EMA's when enabled, else the policy's."""
@@ -297,13 +305,25 @@ def gaze_parts(cfg: TrainConfig, built: Built) -> tuple[ProbeSpec | None, Locati
     g = cfg.gaze
     if g.prior is None or not g.enabled or built.gaze_camera is None:
         return None, None
-    spec = built.policy.gaze_probe_spec(built.gaze_camera, g.layers)
+    masks = None  # language / both: every episode's text mask, so an empty instruction is refused now
+    if g.query_set is not QuerySet.ACTION:
+        masks = torch.cat([ds.text_mask for ds in (built.train_set, built.val_set) if ds is not None])
+    spec = gaze_spec(built.policy, built.gaze_camera, g, masks)
     if g.target != "features":
         return spec, None
     try:
         return spec, make_location_head(built.policy, spec, fixed_batch(built.train_set, 1), cfg.seed)
     except NotImplementedError as e:
         raise UsageError(f"{option('gaze.target')} features: {e}") from e
+
+
+def gaze_spec(policy: Policy, camera: str, g: GazeConfig, text_mask: Tensor | None = None) -> ProbeSpec:
+    """The probed attention of `g.queries` on `g.layers`: the action queries' spec (no batch needed), or for
+    language / both the spec of the batch whose text mask (B, L) is `text_mask`; a refusal names the option."""
+    try:
+        return policy.probe_spec(camera, g.layers, g.query_set, text_mask)
+    except UsageError as e:
+        raise UsageError(f"{option('gaze.queries')} {g.queries}: {e}") from e
 
 
 def make_loader(cfg: TrainConfig, built: Built, sampler: StepBatchSampler, acc: Any) -> Any:

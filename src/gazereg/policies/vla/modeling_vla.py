@@ -22,7 +22,8 @@ Token sequence, one transformer over all of it (T = P + K tokens):
 
 Attention (layers_vla.Attention, explicit softmax or `F.scaled_dot_product_attention`: `VLAConfig.attention`) calls `gazereg.attention.tap(layer, q, k, mask)`: the
 gaze regularizer reads the action queries' attention to one camera's patches through an `AttentionProbe`
-(`gaze_probe_spec`) without changing the forward. Inference (`select_action`) never sees gaze.
+(`gaze_probe_spec`) without changing the forward; with `--gaze.queries language` (or `both`) the instruction's
+real tokens' attention to the patches instead (or as well), padding tokens left out by per-sample weights. Inference (`select_action`) never sees gaze.
 
 Shapes: B batch, T tokens, D width, H heads, N = patches per camera, L text tokens, K chunk, S state dim,
 A action dim. Images enter as stored uint8 frames (B, H_img, W_img, 3).
@@ -41,13 +42,14 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from gazereg.attention.probe import ProbeSpec
+from gazereg.attention.probe import ProbeSpec, QuerySet
 from gazereg.data.dataset import StoreInfo
 from gazereg.patches import PatchGeometry
 from gazereg.policies.base import Policy, UnknownCamera
 from gazereg.policies.vla.configuration_vla import VLAConfig
 from gazereg.policies.vla.layers_vla import Block, ConvStem, attention_bias, flow_time_embedding
 from gazereg.policies.vla.processor_vla import Normalizer, Tokenizer, random_shift, to_input_images
+from gazereg.runtime.errors import UsageError
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +58,7 @@ class VLAPolicy(Policy):
     """The reference vision-language-action policy. See the module docstring for the architecture."""
 
     config_class = VLAConfig
+    gaze_query_sets = frozenset(QuerySet)
     config: VLAConfig
     tokenizer: Tokenizer
 
@@ -148,14 +151,42 @@ class VLAPolicy(Policy):
             raise ValueError(f"attention layers {list(layers)} out of range for a {depth}-layer policy")
         return out
 
-    def gaze_probe_spec(self, camera: str, layers: Sequence[int] | None = None) -> ProbeSpec:
-        """Queries: the K action query positions; keys: `camera`'s N patch positions; layers: default the last 2
-        (negative ids count from the end)."""
-        return ProbeSpec(
-            queries=self.action_positions(),
-            keys=self.patch_positions(camera),
-            layers=self.resolve_layers(layers),
-        )
+    def text_positions(self) -> slice:
+        """Token positions of the L instruction tokens (padding included)."""
+        return slice(self.n_image_tokens, self.n_image_tokens + self.config.max_text_len)
+
+    def gaze_probe_spec(
+        self,
+        camera: str,
+        layers: Sequence[int] | None = None,
+        queries: QuerySet = QuerySet.ACTION,
+        text_mask: Tensor | None = None,
+    ) -> ProbeSpec:
+        """Keys: `camera`'s N patch positions; layers: default the last 2 (negative ids count from the end).
+        Queries: ACTION the K action query positions (no weights: today's plain mean); LANGUAGE the L text
+        positions with weights `text_mask` (B, L) (1 real token, 0 padding; the prefix attends bidirectionally,
+        so every text token sees the patches); BOTH the L text positions then the K action positions, weights
+        [text_mask | 1] (B, L + K): every valid row counts equally. LANGUAGE and BOTH need `text_mask`;
+        LANGUAGE refuses (UsageError) a sample without a real token (an empty instruction)."""
+        keys, layers = self.patch_positions(camera), self.resolve_layers(layers)
+        queries = QuerySet(queries)
+        if queries is QuerySet.ACTION:
+            return ProbeSpec(queries=self.action_positions(), keys=keys, layers=layers)
+        L = self.config.max_text_len
+        if text_mask is None or text_mask.ndim != 2 or text_mask.shape[1] != L:
+            raise ValueError(f"{queries.value} queries need the batch's text_mask (B, {L}) bool")
+        if queries is QuerySet.LANGUAGE and (empty := int((~text_mask.bool().any(1)).sum())):
+            raise UsageError(
+                f"language queries need a real instruction token in every sample: {empty} of "
+                f"{text_mask.shape[0]} sample(s) have an empty instruction"
+            )
+        weights = text_mask.float()
+        if queries is QuerySet.LANGUAGE:
+            return ProbeSpec(queries=self.text_positions(), keys=keys, layers=layers, query_weights=weights)
+        pos = torch.arange(self.n_tokens)
+        positions = torch.cat([pos[self.text_positions()], pos[self.action_positions()]])
+        weights = torch.cat([weights, weights.new_ones(weights.shape[0], self.config.chunk)], 1)
+        return ProbeSpec(queries=positions, keys=keys, layers=layers, query_weights=weights)
 
     def layer_module(self, layer: int) -> nn.Module:
         """Block `layer`: its output's first element is every token's features (B, T, D) after the layer."""
