@@ -8,6 +8,8 @@
     python scripts/update_results.py --file runs/paper-s0/horizon500/horizon.md --marker paper-s0-horizon
         (a markdown file a script wrote, e.g. scripts/horizon.py's, as the block)
     python scripts/update_results.py runs/quick --check      # exit 1 if the run's numbers disagree with the block
+    python scripts/update_results.py docs/records/pretrain-ml45 --marker pretrain-ml45
+        (a `gazereg pretrain` folder or its archive: its block, `FinishedPretraining.block`)
 
 A block is the text between a `<!-- NAME:start -->` and a `<!-- NAME:end -->` line (each a line of its own) on
 one of the pages docs/*.md; everything outside the marker lines is left as it is. The script finds the page
@@ -17,9 +19,12 @@ lines, with no change here. The same lookup serves writing, `--check` and the he
 
 A run's block is `gazereg.report.results_block` of its report.json, with the run's attention figure copied to
 docs/figures/<marker>-attention.png (linked as figures/..., relative to the docs pages); a comparison's block
-is `gazereg.report.compare.compare_markdown`. The README's headline block is the head of the paper-results
-block (its run line and success table, `gazereg.report.headline_lines`), copied from whichever page holds
-it so that the two never disagree.
+is `gazereg.report.compare.compare_markdown`; a pretraining's (a folder `gazereg.experiment.is_pretraining`
+recognises, read by `read_pretraining`, live or archived) is `gazereg.report.pretrain.pretrain_block`, its
+data line holding its numerics key and the pooled success count of its one arm ("pretrained") and condition
+("clean"), so --check treats it as below. The README's headline block is the head of the paper-results block
+(its run line and success table, `gazereg.report.headline_lines`), copied from whichever page holds it so that
+the two never disagree.
 
 --check: a run's numbers depend on the machine it trained on (`--train.mixed_precision auto` trains in bf16
 where the CPU has avx512_bf16 or amx_bf16, in float32 elsewhere, and torch's kernels differ by ISA level and
@@ -48,9 +53,11 @@ import sys
 from pathlib import Path
 
 from gazereg.experiment.compare import compare_runs
+from gazereg.experiment.finished_pretrain import is_pretraining, read_pretraining
 from gazereg.report import results_block
 from gazereg.report.blockdata import DATA_PREFIX, FAMILY_ALPHA, BlockData, agreement, alignment_differences
 from gazereg.report.compare import compare_markdown
+from gazereg.runtime.errors import UsageError
 from gazereg.runtime.hardware import NumericsKey
 from gazereg.runtime.io import atomic_write_text
 
@@ -146,6 +153,14 @@ def run_block(root: Path, run_dir: Path, marker: str, copy_figure: bool = True) 
     return results_block(report, figure.relative_to(DOCS).as_posix())
 
 
+def produce_block(root: Path, run_dir: Path, marker: str, copy_figure: bool = True) -> str:
+    """The block of `run_dir`: a pretraining's (`FinishedPretraining.block`; no figure) or an experiment's
+    (`run_block`)."""
+    if is_pretraining(run_dir):
+        return read_pretraining(run_dir).block()
+    return run_block(root, run_dir, marker, copy_figure)
+
+
 def block_differences(written: str, produced: str) -> list[str]:
     """The lines where a block on the page and a freshly rendered one differ, leaving out the run line (its
     first line: date, machine and wall time change from run to run; the numbers below it must not)."""
@@ -161,7 +176,7 @@ def check(root: Path, run_dir: Path, marker: str) -> int:
     agree with them (`blockdata.agreement`, for different keys), else 1; prints which comparison it made and
     its outcome. A block without a data line (made before blocks carried one) fails: it must be regenerated."""
     docs_page = find_page(root, marker)
-    written, produced = read_block(docs_page, marker), run_block(root, run_dir, marker, False)
+    written, produced = read_block(docs_page, marker), produce_block(root, run_dir, marker, False)
     where = f"{docs_page.relative_to(root).as_posix()} block {marker!r}"
     page, run = BlockData.read(written), BlockData.read(produced)
     if page is None:
@@ -171,7 +186,7 @@ def check(root: Path, run_dir: Path, marker: str) -> int:
             f"{run_dir}{'' if marker == 'quick-results' else f' --marker {marker}'}` and commit it"
         )
         return 1
-    assert run is not None  # results_block always writes the data line
+    assert run is not None  # results_block and pretrain_block always write the data line
     if page.numerics is not None and page.numerics == run.numerics:
         return _check_exact(written, produced, run_dir, where, page.numerics)
     return _check_agreement(page, run, run_dir, where)
@@ -246,7 +261,12 @@ def _usage_error(message: str) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
-    ap.add_argument("run_dir", type=Path, nargs="?", help="the experiment's output folder (its --out)")
+    ap.add_argument(
+        "run_dir",
+        type=Path,
+        nargs="?",
+        help="the experiment's output folder (its --out), a pretraining folder, or an archive of either",
+    )
     ap.add_argument(
         "--marker",
         default="quick-results",
@@ -270,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
         return _usage_error("run_dir is needed unless --headline or --file is given")
     try:
         return _run(args)
-    except MarkerError as e:
+    except (MarkerError, UsageError) as e:
         return _usage_error(str(e))
 
 
@@ -290,14 +310,17 @@ def _run(args: argparse.Namespace) -> int:
         replace_block(page, args.marker, args.file.read_text().rstrip("\n") + "\n")
         print(f"{where} updated from {args.file}")
         return 0
-    if not args.against and not (args.run_dir / "report.json").is_file():
+    pretraining = is_pretraining(args.run_dir)
+    if args.against and pretraining:
+        return _usage_error(f"--against compares experiments; {args.run_dir} is a pretraining folder")
+    if not args.against and not pretraining and not (args.run_dir / "report.json").is_file():
         return _usage_error(f"{args.run_dir} has no report.json (not a finished experiment folder)")
     if args.check:
         return check(root, args.run_dir, args.marker)
     if args.against:
         block = compare_markdown(compare_runs(args.against, args.run_dir), level=4)
     else:
-        block = run_block(root, args.run_dir, args.marker)
+        block = produce_block(root, args.run_dir, args.marker)
     replace_block(page, args.marker, block)
     print(f"{where} updated from {args.run_dir}")
     if args.marker == HEADLINE_SOURCE:

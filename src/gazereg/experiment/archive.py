@@ -13,6 +13,13 @@ over sittings that each start on a fresh machine is still reported as one experi
 
 The archive's `archive.json` names its source and the results' date (its files' own times are when they were
 copied or checked out).
+
+A pretraining folder (`gazereg pretrain --out`; `finished_pretrain.is_pretraining`) is archived the same way,
+read back by `gazereg.experiment.read_pretraining`: its config.json, manifest.json, stage records, evaluation
+record (compressed above GZIP_ABOVE bytes) and training metrics (compressed); no demonstrations, checkpoints
+or policy weights (the policy is committed where it is used, its SHA-256 in the manifest):
+
+    gazereg archive runs/pretrain --out docs/records/pretrain-ml45
 """
 
 from __future__ import annotations
@@ -33,6 +40,13 @@ from gazereg.experiment.finished import (
     read_run,
     run_dir,
 )
+from gazereg.experiment.finished_pretrain import (
+    EVAL_DIR,
+    MANIFEST_FILE,
+    TRAIN_DIR,
+    is_pretraining,
+    read_pretraining,
+)
 from gazereg.report.ids import RunId
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_dir, atomic_write_json, gz_path, write_gz_copy
@@ -41,15 +55,22 @@ KEPT = (CONFIG_FILE, REPORT_FILE, "report.md", "figures/attention.png")
 """files kept as they are, when the folder has them (the other figures a report draws again)"""
 COMPRESSED = (f"eval/{EVAL_INFO}", f"converge/{EVAL_INFO}")
 """files kept compressed (NAME.gz), with every training run's `train/RUN/metrics.jsonl`"""
+GZIP_ABOVE = 100_000
+"""a pretraining's eval/eval_info.json is kept compressed when larger than this (bytes), else as it is"""
+
+
+def _stage_records(source: Path) -> list[Path]:
+    """The stage records of `source`, relative to it (not the clocks of interrupted stages)."""
+    return sorted(
+        p.relative_to(source) for p in (source / STAGES_DIR).glob("*.json") if ".clock." not in p.name
+    )
 
 
 def archived_files(source: Path, runs: Sequence[RunId]) -> tuple[list[Path], list[Path]]:
     """(files kept as they are, files kept compressed), relative to `source`: see KEPT and COMPRESSED; the
     stage records too (not the clocks of interrupted stages) and the training metrics of `runs`."""
     plain = [Path(name) for name in KEPT if (source / name).is_file()]
-    plain += sorted(
-        p.relative_to(source) for p in (source / STAGES_DIR).glob("*.json") if ".clock." not in p.name
-    )
+    plain += _stage_records(source)
     squeezed = [Path(name) for name in COMPRESSED]
     squeezed += [(run_dir(source, run) / METRICS_FILE).relative_to(source) for run in runs]
     return plain, [
@@ -57,14 +78,41 @@ def archived_files(source: Path, runs: Sequence[RunId]) -> tuple[list[Path], lis
     ]
 
 
-def archive(source: Path, dest: Path) -> Path:
-    """Write the archive of the finished experiment in `source` to `dest` (whole or not at all; an existing
-    archive there is replaced); returns `dest`. UsageError when `source` has not finished or `dest` is in
-    it."""
-    run = read_run(source)  # refuses an unfinished folder, naming the first unfinished stage
+def pretraining_files(source: Path, gzip_above: int = GZIP_ABOVE) -> tuple[list[Path], list[Path]]:
+    """(files kept as they are, files kept compressed), relative to the pretraining folder `source`:
+    config.json, manifest.json and the stage records as they are; eval/eval_info.json as it is up to
+    `gzip_above` bytes, else compressed (kept compressed when `source` is an archive that has it so); and
+    train/metrics.jsonl compressed. Nothing else: no demonstrations, checkpoints or policy weights."""
+    plain = [Path(CONFIG_FILE), Path(MANIFEST_FILE), *_stage_records(source)]
+    info = Path(EVAL_DIR) / EVAL_INFO
+    squeezed = [Path(TRAIN_DIR) / METRICS_FILE]
+    if (source / info).is_file() and (source / info).stat().st_size <= gzip_above:
+        plain.append(info)
+    else:
+        squeezed.insert(0, info)
+    return plain, [p for p in squeezed if (source / p).is_file() or gz_path(source / p).is_file()]
+
+
+def archive(source: Path, dest: Path, gzip_above: int = GZIP_ABOVE) -> Path:
+    """Write the archive of the finished experiment or pretraining (`is_pretraining`) in `source` to `dest`
+    (whole or not at all; an existing archive there is replaced); returns `dest`. UsageError when `source` has
+    not finished or `dest` is in it. `gzip_above`: see `pretraining_files`."""
+    if is_pretraining(source):  # refuses an unfinished folder, naming the first unfinished stage
+        date = read_pretraining(source).date
+        plain, squeezed = pretraining_files(source, gzip_above)
+    else:
+        run = read_run(source)  # refuses an unfinished folder, naming the first unfinished stage
+        date = run.date
+        plain, squeezed = archived_files(source, run.runs)
     if dest.resolve() == source.resolve() or source.resolve() in dest.resolve().parents:
         raise UsageError(f"--out {dest} is inside the run folder {source}: choose a folder outside it")
-    plain, squeezed = archived_files(source, run.runs)
+    _write(source, dest, plain, squeezed, date)
+    return dest
+
+
+def _write(source: Path, dest: Path, plain: list[Path], squeezed: list[Path], date: str) -> None:
+    """Copy `plain` and compress `squeezed` (relative to `source`) into `dest`, with the archive's record of
+    its source and `date`; whole or not at all."""
     with atomic_dir(dest) as tmp:
         for rel in plain:
             (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -75,15 +123,16 @@ def archive(source: Path, dest: Path) -> Path:
                 write_gz_copy(source / rel, gz_path(tmp / rel))
             else:  # an archive of an archive
                 shutil.copyfile(gz_path(source / rel), gz_path(tmp / rel))
-        atomic_write_json(tmp / ARCHIVE_RECORD, {"source": str(source), "date": run.date})
-    return dest
+        atomic_write_json(tmp / ARCHIVE_RECORD, {"source": str(source), "date": date})
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="gazereg archive", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("run", type=Path, help="a finished experiment's run folder")
+    parser.add_argument(
+        "run", type=Path, help="a finished experiment's run folder, or a finished pretraining folder"
+    )
     parser.add_argument("--out", type=Path, required=True, help="the archive folder to write")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if not args.run.is_dir():
