@@ -168,32 +168,58 @@ class EpisodeDataset(torch.utils.data.Dataset):
             raise ValueError("an EpisodeDataset needs at least one episode")
         self.store, self.episodes, self.cameras, self.chunk = store, list(episodes), list(cameras), int(chunk)
         self.in_memory = in_memory
-        eps = [store.read(i, cameras=self.cameras) for i in self.episodes]
-        self.lengths = torch.tensor([e.length for e in eps], dtype=torch.long)
+        self.lengths = torch.tensor([int(store.meta(i)["length"]) for i in self.episodes], dtype=torch.long)
         self.offsets = torch.cat([torch.zeros(1, dtype=torch.long), self.lengths.cumsum(0)[:-1]])
         n = int(self.lengths.sum())
         self.ep_of = torch.repeat_interleave(
-            torch.arange(len(eps)), self.lengths
+            torch.arange(len(self.episodes)), self.lengths
         )  # (n,) position in self.episodes
         self.t_of = torch.arange(n) - self.offsets[self.ep_of]
-        self.state = torch.from_numpy(np.concatenate([np.asarray(e.state, dtype=np.float32) for e in eps]))
-        self.action = torch.from_numpy(np.concatenate([np.asarray(e.action, dtype=np.float32) for e in eps]))
-        self.instructions = [e.instruction for e in eps]
+        self.frames: dict[str, Tensor] | None = None
+        self._mmaps: dict[str, list[np.ndarray]] | None = None
+        self.state, self.action, self.instructions = self._read_episodes(n)
         self.text_ids, self.text_mask = tokenizer(self.instructions)  # (E, L)
-        if in_memory:
-            self.frames = {
-                c: torch.from_numpy(np.concatenate([np.asarray(e.frames[c]) for e in eps]))
-                for c in self.cameras
-            }
-            self._mmaps = None
-        else:
-            self.frames = None
-            self._mmaps = {c: [e.frames[c] for e in eps] for c in self.cameras}
         self.gaze: Tensor | None = None
         self.gaze_valid: Tensor | None = None
         self.gaze_camera: str | None = None
         if gaze_prior is not None:
             self._load_gaze(gaze_prior, gaze_camera, geometry, gaze_eps)
+
+    def _read_episodes(self, n: int) -> tuple[Tensor, Tensor, list[str]]:
+        """(n, S) states and (n, A) actions as float32 and each episode's instruction; frames into one (n, H, W,
+        3) uint8 tensor per camera (`in_memory`) or kept as each episode's memory map. Episodes are read one
+        at a time, so the open files are the kept frame maps at most (a store of thousands of episodes would
+        otherwise hold every episode's arrays open at once and run out of file descriptors)."""
+        states, actions, instructions = [], [], []
+        frames: dict[str, np.ndarray] = {}
+        mmaps: dict[str, list[np.ndarray]] = {c: [] for c in self.cameras}
+        for pos, i in enumerate(self.episodes):
+            e = self.store.read(i, cameras=self.cameras)
+            if e.length != int(self.lengths[pos]):
+                raise ValueError(
+                    f"episode {i} has {e.length} frames, its meta.json says {int(self.lengths[pos])}"
+                )
+            states.append(np.array(e.state, dtype=np.float32))
+            actions.append(np.array(e.action, dtype=np.float32))
+            instructions.append(e.instruction)
+            lo, hi = int(self.offsets[pos]), int(self.offsets[pos]) + e.length
+            for c in self.cameras:
+                if not self.in_memory:
+                    mmaps[c].append(e.frames[c])
+                    continue
+                if c not in frames:
+                    frames[c] = np.empty((n, *e.frames[c].shape[1:]), dtype=e.frames[c].dtype)
+                frames[c][lo:hi] = e.frames[c]
+            del e  # its memory maps close here
+        if self.in_memory:
+            self.frames = {c: torch.from_numpy(f) for c, f in frames.items()}
+        else:
+            self._mmaps = mmaps
+        return (
+            torch.from_numpy(np.concatenate(states)),
+            torch.from_numpy(np.concatenate(actions)),
+            instructions,
+        )
 
     # ----- gaze ----------------------------------------------------------------------------------------------
     def _load_gaze(self, name: str, camera: str | None, geometry: PatchGeometry | None, eps: float) -> None:

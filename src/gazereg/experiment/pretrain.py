@@ -52,6 +52,7 @@ from gazereg.experiment.pretrain_config import (
     finetune_flags,
     preflight,
 )
+from gazereg.experiment.records import with_added_keys
 from gazereg.policies.base import CONFIG_FILE, MODEL_FILE, TOKENIZER_FILE
 from gazereg.runtime.clock import ResumableClock
 from gazereg.runtime.config import check_same_config, parse, save_config, split_preset, to_dict
@@ -113,11 +114,12 @@ class Pretraining:
         return json.loads(m.read_text()) if m.exists() else None
 
     def check_resumable(self) -> None:
-        """Refuse a folder whose finished stages were made with another configuration."""
+        """Refuse a folder whose finished stages were made with another configuration; a key added to the
+        configuration since the folder was made counts as its default (`records.with_added_keys`)."""
         saved = self.out / "config.json"
         if saved.exists():
             check_same_config(
-                json.loads(saved.read_text()),
+                with_added_keys(json.loads(saved.read_text()), to_dict(PretrainConfig()), to_dict(self.cfg)),
                 self.cfg,
                 EXECUTION_KEYS,
                 self.out,
