@@ -30,15 +30,23 @@ from __future__ import annotations
 import argparse
 import json
 import shlex
-import subprocess
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
-from gazereg.experiment.finished import FinishedRun, Record, read_run
-from gazereg.report.ids import RunId
-from gazereg.runtime.errors import UsageError
+from gazereg.experiment.finished import FinishedRun, read_run
+from gazereg.experiment.tuning import (
+    candidate_record,
+    choose,
+    experiment_command,
+    markdown_table,
+    per_seed_text,
+    per_task_text,
+    run_experiment,
+    totals,
+    write_record,
+)
+from gazereg.runtime.io import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs" / "tuning"
@@ -66,8 +74,7 @@ def result_path(name: str) -> Path:
 
 def successes(name: str) -> int:
     """Validation successes of a finished candidate, over both seeds and tasks."""
-    val = json.loads(result_path(name).read_text())["validation"]
-    return sum(c[0] for seeds in val.values() for c in seeds.values())
+    return totals(json.loads(result_path(name).read_text())["validation"])[0]
 
 
 def combined() -> tuple[str, list[str]] | None:
@@ -90,8 +97,7 @@ def chosen() -> str | None:
         return None
     if combined() is not None and not result_path("combined").exists():
         return None
-    names = [n for n in all_candidates() if result_path(n).exists()]
-    return max(names, key=lambda n: (successes(n), -names.index(n)))
+    return choose({n: successes(n) for n in all_candidates() if result_path(n).exists()})
 
 
 def all_candidates() -> dict[str, tuple[str, list[str]]]:
@@ -106,54 +112,24 @@ def all_candidates() -> dict[str, tuple[str, list[str]]]:
 def command(name: str, overrides: list[str] | None = None) -> list[str]:
     """The `gazereg experiment` command line of candidate `name` (its overrides after the shared ones)."""
     extra = CANDIDATES[name][1] if overrides is None else overrides
-    return ["gazereg", "experiment", *BASE, *extra, "--out", f"runs/tune/{name}"]
-
-
-def validation_successes(episodes: list[Record]) -> dict[str, dict[str, list[int]]]:
-    """{task: {training seed: [successes, episodes]}} of the clean ones of an experiment's evaluation records."""
-    out: dict[str, dict[str, list[int]]] = {}
-    for ep in episodes:
-        if ep["condition"] != "clean":
-            continue
-        seed = str(RunId.parse(ep["arm"]).seed)
-        cell = out.setdefault(ep["task"], {}).setdefault(seed, [0, 0])
-        cell[0] += int(ep["success"])
-        cell[1] += 1
-    return out
+    return experiment_command(BASE, extra, f"runs/tune/{name}")
 
 
 def candidate_result(run: FinishedRun, name: str, change: str, overrides: list[str]) -> dict[str, Any]:
     """Candidate `name`'s record (docs/tuning/baseline/<name>.json, less this call's wall time) from its
     finished experiment `run` (a run folder or its archive): its command, stage times, machine, date and
     validation successes per task and training seed."""
-    report = run.report
-    if report is None:
-        raise UsageError(f"{run.path} has no report.json: rerun its experiment to finish the report stage")
-    return {
-        "candidate": name,
-        "change": change,
-        "overrides": overrides,
-        "command": shlex.join(command(name, overrides)),
-        "stage_seconds": report["stage_times_s"],
-        "wall_time_s": report["wall_time_s"],
-        "machine": report["machine"]["summary"],
-        "date": report["date"],
-        "validation": validation_successes(run.episodes()),
-    }
+    return candidate_record(run, name, change, overrides, command(name, overrides))
 
 
 def run_candidate(name: str, change: str, overrides: list[str]) -> Path:
     """Run (or resume) candidate `name`; write and return docs/tuning/baseline/<name>.json."""
-    cmd = command(name, overrides)
     t0 = time.time()
-    subprocess.run([sys.executable, "-m", "gazereg.cli", *cmd[1:]], cwd=ROOT, check=True)
+    run_experiment(command(name, overrides), ROOT)
     result = candidate_result(read_run(ROOT / "runs" / "tune" / name), name, change, overrides)
     result["wall_s_this_call"] = round(time.time() - t0, 1)
     path = result_path(name)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(result, indent=1) + "\n")
-    tmp.replace(path)
+    write_record(path, result)
     return path
 
 
@@ -165,16 +141,8 @@ def table() -> str:
             continue
         r = json.loads(result_path(name).read_text())
         val = r["validation"]
-        total = successes(name)
-        n = sum(c[1] for t in val.values() for c in t.values())
-        per_task = ", ".join(
-            f"{task} {sum(c[0] for c in seeds.values())}/{sum(c[1] for c in seeds.values())}"
-            for task, seeds in val.items()
-        )
-        per_seed = ", ".join(
-            f"s{s} {sum(val[t][s][0] for t in val)}" for s in sorted({s for t in val.values() for s in t})
-        )
-        rows.append((total, n, name, r["change"], per_task, per_seed))
+        total, n = totals(val)
+        rows.append((total, n, name, r["change"], per_task_text(val), per_seed_text(val)))
     rows.sort(key=lambda row: -row[0] / max(row[1], 1))
     lines = [
         "# Baseline tuning on validation setups (no gaze)",
@@ -182,12 +150,11 @@ def table() -> str:
         "Written by `python scripts/tune_baseline.py` (its docstring states the protocol); each row is one",
         "candidate's `gazereg experiment` run, its command in docs/tuning/baseline/<candidate>.json.",
         "",
-        "| candidate | change | validation success | per task | per training seed |",
-        "|---|---|---|---|---|",
     ]
-    lines += [
-        f"| {name} | {change} | {k}/{n} = {k / n:.2f} | {pt} | {ps} |" for k, n, name, change, pt, ps in rows
-    ]
+    lines += markdown_table(
+        ("candidate", "change", "validation success", "per task", "per training seed"),
+        [(name, change, f"{k}/{n} = {k / n:.2f}", pt, ps) for k, n, name, change, pt, ps in rows],
+    )
     done = {row[2] for row in rows}
     todo = [name for name in CANDIDATES if name not in done]
     lines += ["", f"Not run yet: {', '.join(todo)}." if todo else "Every one-factor candidate has run."]
@@ -224,9 +191,9 @@ def main(argv: list[str] | None = None) -> int:
     for name, (change, overrides) in todo.items():
         print(f"candidate {name}: {shlex.join(command(name, overrides))}", flush=True)
         run_candidate(name, change, overrides)
-        (DOCS / "baseline.md").write_text(table())
+        atomic_write_text(DOCS / "baseline.md", table())
     DOCS.mkdir(parents=True, exist_ok=True)
-    (DOCS / "baseline.md").write_text(table())
+    atomic_write_text(DOCS / "baseline.md", table())
     print(table())
     return 0
 
