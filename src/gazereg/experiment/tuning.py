@@ -16,6 +16,7 @@ The choice rule of both scripts (`choose`): the most validation successes, ties 
 
 from __future__ import annotations
 
+import functools
 import json
 import shlex
 import subprocess
@@ -58,11 +59,18 @@ def run_experiment(command: Sequence[str], root: Path) -> None:
     subprocess.run([sys.executable, "-m", "gazereg.cli", *command[1:]], cwd=root, check=True)
 
 
+@functools.cache
+def built_config(command: tuple[str, ...]) -> ExperimentConfig:
+    """The configuration the `gazereg experiment` command line `command` builds (UsageError, one line, for
+    a bad option); cached, as a command builds the same configuration every time in one process."""
+    return parse(PRESETS, list(command[2:]), prog=" ".join(command[:2]))
+
+
 def check_candidate(run: FinishedRun, command: Sequence[str]) -> None:
     """UsageError (one line, naming each differing key) when the finished `run` was not made by the
     `gazereg experiment` command line `command`: its saved configuration must be the one `command` builds
     but for the execution keys and the output folder."""
-    built = parse(PRESETS, list(command[2:]), prog=" ".join(command[:2]))
+    built = built_config(tuple(command))
     check_same_config(
         with_added_keys(run.config, to_dict(ExperimentConfig()), to_dict(built)),
         built,
