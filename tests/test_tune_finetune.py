@@ -83,6 +83,9 @@ def test_the_commands_of_each_step(tune):
     assert (cfg.arms, cfg.train_seeds, cfg.tasks, cfg.demos_per_task) == (("baseline",), (0,), TASKS, 10)
     assert (cfg.eval.seed_start, cfg.eval.episodes, cfg.eval.conditions) == (1300, 20, ("clean",))
     assert (cfg.train.optim.lr, cfg.train.steps, str(cfg.train.init_from)) == (1e-3, 3000, "models/ml45")
+    assert (
+        cfg.train.policy.depth == 4
+    )  # the layers step's early (0), middle (1 2), last (3) and default (2 3)
     assert entry(tune, "w1").overrides is None  # unknown until the recipe step has chosen
 
     for name, k in (("ft-default", 40), ("ft-lr1e-4", 30), ("ft-lr1e-3", 45), ("ft-steps6k", 45)):
