@@ -2,6 +2,7 @@
 preset on the machine it runs on; printed as JSON.
 
     python benchmarks/bench_pretrain_size.py [--sizes 128x4 192x4 192x6 256x6] [--batch 32] [--steps 8] [--rounds 3]
+    python benchmarks/bench_pretrain_size.py --markdown docs/benchmarks/pretrain_size.json   # its table, for docs
 
 Each size WIDTHxDEPTH is the `ml45` preset's policy (96 px images in 12 px patches, chunks of 8, 16 word tokens)
 with that width and depth (4 heads, as the preset). On a synthetic store (no simulator), the median wall time of a
@@ -15,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import sys
 import tempfile
 import time
 from dataclasses import replace
@@ -61,6 +63,29 @@ def step(policy: VLAPolicy, opt: torch.optim.Optimizer, batch: dict, i: int) -> 
     opt.step()
 
 
+def markdown_table(result: dict, source: str) -> str:
+    """A JSON this script wrote as a markdown table under a line naming the machine, the batch and `source`."""
+    m = result["machine"]
+    precision = "bf16" if m["resolved_precision"] == "bf16" else "float32"
+    head = (
+        f"{m['cpu_model']} ({m['cpu_vendor']}, torch CPU capability {m['cpu_capability']}), {m['cores']} cores, "
+        f"torch {m['torch']}, {precision}; batch {result['batch']}, load average before "
+        f"{m['load_avg_before'][0]}; from `{source}`:"
+    )
+    steps = result["pretrain_steps"]
+    lines = [
+        head,
+        "",
+        f"| width x depth | parameters (M) | tokens | ms per step | hours for {steps:,} steps |",
+        "|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| {r['size']} | {r['params_m']:.2f} | {r['tokens']} | {r['step_ms']:.0f} | {r['hours_for_pretrain_steps']:.2f} |"
+        for r in result["sizes"]
+    ]
+    return "\n".join(lines)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", nargs="+", default=["128x4", "192x4", "192x6", "256x6"])
@@ -68,7 +93,16 @@ def main() -> int:
     ap.add_argument("--steps", type=int, default=8, help="timed steps per size per round")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--pretrain-steps", type=int, default=30_000)
+    ap.add_argument(
+        "--markdown", type=Path, default=None, metavar="JSON", help="measure nothing: print a JSON's table"
+    )
     args = ap.parse_args()
+    if args.markdown is not None:
+        if not args.markdown.is_file():
+            print(f"bench_pretrain_size.py: error: --markdown {args.markdown}: no such file", file=sys.stderr)
+            return 2
+        print(markdown_table(json.loads(args.markdown.read_text()), args.markdown.name))
+        return 0
     sizes = [parse_size(s) for s in args.sizes]
     models = {s: build(*s) for s in sizes}
     first = next(iter(models.values()))[0]

@@ -1,4 +1,4 @@
-"""The experiment presets of the pretraining study (issue 36, docs/studies/pretraining.md): the ML45 generalist
+"""The experiment presets of the pretraining study (issue 36, docs/pretraining.md): the ML45 generalist
 (`gazereg pretrain --preset ml45`, committed in `GENERALIST`) fine-tuned on ML45's five held-out tasks
 (`ml45_finetune`), and the same run from a fresh initialisation (`ml45_scratch`). They register in
 `gazereg.experiment.config.PRESETS` when the package is imported.

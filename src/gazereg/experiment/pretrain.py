@@ -23,7 +23,7 @@ configuration but for the execution keys, `pretrain_config.EXECUTION_KEYS`):
             numerics key, the config, each stage's wall time, the multi-task success, and the options that give
             a fine-tuning run this policy's architecture (`finetune_flags`)
 
-Presets and checks: `gazereg.experiment.pretrain_config`; the study around it: docs/studies/pretraining.md.
+Presets and checks: `gazereg.experiment.pretrain_config`; the study around it: docs/pretraining.md.
 """
 
 from __future__ import annotations

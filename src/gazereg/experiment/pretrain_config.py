@@ -169,7 +169,7 @@ def finetune_flags(policy: PolicyConfig, prefix: str = "--train.policy.") -> lis
 def ml45_policy() -> VLAConfig:
     """The generalist's architecture: width 192, 4 layers, 4 heads (about 1.3 M parameters), 96 px images in
     12 px patches (8 x 8 tokens), chunks of 8, 16 word tokens of instruction. Sized by the step time
-    benchmarks/bench_pretrain_size.py measures (docs/studies/pretraining.md): the whole pretraining must fit one
+    benchmarks/bench_pretrain_size.py measures (docs/pretraining.md): the whole pretraining must fit one
     sitting on 2 cores, and every fine-tuning run of the study and `make demo` pays for its size."""
     return VLAConfig(dim=192, depth=4, heads=4, chunk=8, tokenizer="words", max_text_len=TEXT_TOKENS)
 

@@ -1,4 +1,4 @@
-"""A finished pretraining's results block (`gazereg pretrain`; docs/studies/pretraining.md), rendered from
+"""A finished pretraining's results block (`gazereg pretrain`; docs/pretraining.md), rendered from
 plain data: its manifest.json, its stages' wall times, its evaluation episodes and its training metrics rows,
 as `gazereg.experiment.read_pretraining` reads them from the folder or its archive. Nothing here reads files.
 
