@@ -138,6 +138,24 @@ def test_verdict_cites_the_paired_test():
     assert "no difference shown at this budget (the 95% intervals overlap)" in v[0]
 
 
+def test_a_verdict_says_when_the_paired_interval_excludes_0_but_the_exact_test_does_not_decide():
+    """The quick run's case: 32/50 vs 25/50 with 10 vs 3 discordant pairs (McNemar p 0.092) while the
+    approximate paired interval excludes 0: not 'no difference shown', and not 'better' either."""
+    base = [1] * 25 + [0] * 25
+    gaze = [1] * 22 + [0] * 3 + [1] * 10 + [0] * 15
+    recs = records("baseline@s0", base) + records("gaze@s0", gaze)
+    test = paired_tests(recs)
+    (name,) = test
+    lo, hi = test[name]["rate_ci95"]
+    assert lo > 0 and test[name]["mcnemar_p"] >= 0.05
+    (line,) = verdict(success_table(recs), paired=test)
+    assert (
+        ">= 0.05: not shown at this budget, although the paired difference's approximate 95% CI excludes 0"
+        in line
+    )
+    assert "no difference shown" not in line and "is better" not in line
+
+
 def test_convergence_steps_to_threshold_and_baseline_final():
     conv = convergence(
         {"baseline": {100: (1, 10), 200: (4, 10)}, "gaze": {100: (5, 10), 200: (6, 10)}}, threshold=0.5

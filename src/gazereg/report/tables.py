@@ -234,7 +234,8 @@ def verdict(
     levels: dict[Unit, dict[str, dict[str, Any]]] | None = None,
 ) -> list[str]:
     """Plain sentences on what the data allow one to conclude: with `paired_tests`' results, the paired exact
-    test on the shared setups decides (at `alpha`); without, only non-overlapping Wilson intervals do. With
+    test on the shared setups decides (at `alpha`), and a sentence whose test does not reach `alpha` says so
+    when the paired difference's approximate interval excludes 0 all the same; without, only non-overlapping Wilson intervals do. With
     `levels` ({unit: `unit_level_tests`' results}, for several training seeds or tasks), each sentence also
     says whether the seeds (tasks) settle it."""
     if reference not in success:
@@ -263,6 +264,11 @@ def verdict(
                 if p < alpha:
                     out.append(
                         f"{head}; paired McNemar p = {p:.3g} < {alpha}: {arm} is {better} ({intervals}).{tail}"
+                    )
+                elif "rate_ci95" in test and (test["rate_ci95"][0] > 0 or test["rate_ci95"][1] < 0):
+                    out.append(
+                        f"{head}; paired McNemar p = {p:.3g} >= {alpha}: not shown at this budget, although the "
+                        f"paired difference's approximate 95% CI excludes 0 (the exact test decides; {intervals}).{tail}"
                     )
                 else:
                     out.append(
