@@ -33,9 +33,10 @@ vendor), so every block ends with a data line (`gazereg.report.blockdata`: the r
 CPU vendor, torch version, GPU -- its success counts and its attention columns), and the check reads that
 line from the page and from the run's freshly rendered block:
 - equal keys: exact; every line but the run line (date, machine, wall time) must be the same;
-- different keys (or a key one side does not record): agreement; the same arms, conditions and episodes per
-  cell, and for each arm x condition a two-sided Fisher exact test of the page's k/n against the run's k/n
-  with p >= 0.01 / (number of cells) (Bonferroni: equal success rates fail some cell with chance <= 0.01);
+- different keys (or a key one side does not record, or runs that trained on machines whose keys differ:
+  no one key): agreement; the same arms, conditions and episodes per cell, and for each arm x condition a
+  two-sided Fisher exact test of the page's k/n against the run's k/n with p >= 0.01 / (number of cells)
+  (Bonferroni: equal success rates fail some cell with chance <= 0.01);
   the attention columns are not tested (their largest differences are printed), nor the verdict lines;
 - a block without a data line (rendered before blocks carried one) fails, saying to regenerate it.
 It prints which comparison it made and why.
@@ -208,7 +209,13 @@ def _check_exact(written: str, produced: str, run_dir: Path, where: str, key: Nu
 
 def _check_agreement(page: BlockData, run: BlockData, run_dir: Path, where: str) -> int:
     """Different (or unrecorded) numerics keys: the success counts must agree by `blockdata.agreement`."""
-    if page.numerics is None or run.numerics is None:
+    several = next(
+        (side for side, d in (("page", page), ("run", run)) if d.numerics is None and d.machines), ""
+    )
+    if several:
+        keys = (page if several == "page" else run).machines
+        why = f"the {several} trained on several machines ({'; '.join(k.describe() for k in keys)})"
+    elif page.numerics is None or run.numerics is None:
         why = f"the {'page' if page.numerics is None else 'run'} records no training precision"
     else:
         why = f"numerics differ: {'; '.join(page.numerics.differences(run.numerics))} (page vs run)"

@@ -1,7 +1,7 @@
 """`gazereg archive RUN_FOLDER --out DEST`: a finished experiment's results without its data, small enough to
 commit (under docs/), so they outlive the machine they were made on: the configuration, stage records, report,
-attention figure, evaluation records and training metrics (these two compressed); no demonstrations, priors,
-GLC or checkpoints. `gazereg pool --runs` reads an archive as it reads the folder itself, so a preset split
+attention figure, evaluation records and training metrics (these two compressed), each run's numerics.json
+(the machines it trained on); no demonstrations, priors, GLC or checkpoints. `gazereg pool --runs` reads an archive as it reads the folder itself, so a preset split
 over sittings that each start on a fresh machine is still reported as one experiment:
 
     gazereg experiment --preset paper --arms uniform other_episode --out runs/paper-abl-a   # sitting 1
@@ -50,6 +50,7 @@ from gazereg.experiment.finished_pretrain import (
 from gazereg.report.ids import RunId
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_dir, atomic_write_json, gz_path, write_gz_copy
+from gazereg.training.numerics import NUMERICS_FILE
 
 KEPT = (CONFIG_FILE, REPORT_FILE, "report.md", "figures/attention.png")
 """files kept as they are, when the folder has them (the other figures a report draws again)"""
@@ -68,9 +69,12 @@ def _stage_records(source: Path) -> list[Path]:
 
 def archived_files(source: Path, runs: Sequence[RunId]) -> tuple[list[Path], list[Path]]:
     """(files kept as they are, files kept compressed), relative to `source`: see KEPT and COMPRESSED; the
-    stage records too (not the clocks of interrupted stages) and the training metrics of `runs`."""
+    stage records too (not the clocks of interrupted stages), the training metrics of `runs` and their
+    numerics records (`training.numerics`, where they have one)."""
     plain = [Path(name) for name in KEPT if (source / name).is_file()]
     plain += _stage_records(source)
+    numerics = [(run_dir(source, run) / NUMERICS_FILE).relative_to(source) for run in runs]
+    plain += [p for p in numerics if (source / p).is_file()]  # runs made before numerics.json have none
     squeezed = [Path(name) for name in COMPRESSED]
     squeezed += [(run_dir(source, run) / METRICS_FILE).relative_to(source) for run in runs]
     return plain, [

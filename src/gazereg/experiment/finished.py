@@ -12,6 +12,7 @@
     run.episodes_by_condition()                        # {condition: records}
     run.report                                         # report.json's content, or None
     run.metrics(RunId("gaze", 0))                      # the run's training metrics records
+    run.numerics                                       # {RunId: its training attempts' numerics keys, or None}
     run.eval_config(out="runs/x", conditions=("dim:0.7",))   # its evaluation settings, to roll out again
 
 What a folder holds (the layout this module alone reads; the stages write it):
@@ -19,7 +20,8 @@ What a folder holds (the layout this module alone reads; the stages write it):
     stages/<stage>.json           each finished stage's record, its duration (`seconds`) among it
     eval/eval_info.json           the final checkpoints' evaluation (`gazereg.evaluation.rollout.evaluate`)
     converge/eval_info.json       the intermediate checkpoints' (absent when there were none)
-    train/<arm>_s<seed>/          each run's folder: metrics.jsonl, checkpoints/step_NNNNNN (`run_dir`)
+    train/<arm>_s<seed>/          each run's folder: metrics.jsonl, checkpoints/step_NNNNNN (`run_dir`),
+                                  numerics.json (`training.numerics`; absent in runs made before it)
     report.json, report.md        the report stage's output
     archive.json                  an archive's record of its source and the results' date (archives only)
 An archive keeps the evaluation records and training metrics compressed (NAME.gz, read as NAME) and no
@@ -47,6 +49,7 @@ from gazereg.report.ids import RunId
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import exists_or_gz, read_text
 from gazereg.training.logger import read_metrics
+from gazereg.training.numerics import TrainingAttempt, read_numerics
 
 STAGES = ("demos", "priors", "train", "eval", "converge", "align", "report")
 """the experiment's stages, in the order they run"""
@@ -269,6 +272,12 @@ class FinishedRun:
         loss/action, loss/gaze_kl, lr, ...; [] when it logged none)."""
         return read_metrics(self.metrics_file(run))
 
+    @cached_property
+    def numerics(self) -> dict[RunId, tuple[TrainingAttempt, ...] | None]:
+        """{run: the numerics keys its training attempts recorded (`training.numerics`: one attempt per machine
+        and resume, in order)}, None for a run that recorded none (trained before runs recorded their key)"""
+        return {run: read_numerics(run_dir(self.path, run)) for run in self.runs}
+
     # ----- evaluation records -----------------------------------------------------------------------------
     def episodes(self, folder: EvalFolder = "eval") -> list[Record]:
         """The evaluation records (`Record`) of `folder`: "eval", the final checkpoints under every condition;
@@ -321,6 +330,7 @@ class FinishedRun:
             attention_figure=self.stages["align"]["figure"],
             date=self.date,
             stage_times=self.stage_times,
+            numerics=self.numerics,
         )
 
     # ----- data a run folder keeps beside its results -----------------------------------------------------

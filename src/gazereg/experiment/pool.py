@@ -79,6 +79,7 @@ def merge_outputs(sources: Sequence[Path], outputs: Sequence[StageOutputs], out:
         attention_figure=figure.as_posix(),
         date=max(o.date for o in outputs),
         stage_times=times,
+        numerics={k: v for o in outputs for k, v in o.numerics.items()},
     )
 
 

@@ -8,7 +8,9 @@ A results block (`markdown.results_block`) ends with one HTML comment line, invi
 `BlockData.of_report(report).line()` renders it from report.json and `BlockData.read(block)` reads it back, so
 that scripts/update_results.py --check compares counts and keys, never prose tables. "numerics" is the
 `NumericsKey` of the machine and precision the runs trained with (null where the report does not record
-one); "alignment" holds the block's attention-vs-gaze columns rounded to ALIGNMENT_DECIMALS.
+one, or where its runs trained on machines whose keys differ: the line then also holds "machines", the
+distinct keys they recorded, absent otherwise); "alignment" holds the block's attention-vs-gaze columns
+rounded to ALIGNMENT_DECIMALS.
 
 `agreement(page, run)` is the check for runs whose numerics differ (the rule, in full, in its docstring).
 """
@@ -42,14 +44,20 @@ class BlockData:
     numerics: NumericsKey | None
     success: dict[str, dict[str, Counts]]
     alignment: dict[str, dict[str, float]] = field(default_factory=dict)
+    machines: tuple[NumericsKey, ...] = ()
+    """with numerics None: the distinct keys the runs recorded when they trained (several machines, or some
+    runs unrecorded); empty otherwise"""
 
     @classmethod
     def of_report(cls, report: dict[str, Any], metrics: tuple[str, ...] = ()) -> BlockData:
-        """The data of report.json's block: its machine's "numerics", every arm x condition count of its
-        success table, and `metrics` of every arm's alignment."""
+        """The data of report.json's block: its machine's "numerics" (with none, the keys its runs recorded,
+        "trained_on"), every arm x condition count of its success table, and `metrics` of every arm's
+        alignment."""
         key = report["machine"].get("numerics")
+        trained = [] if key else report["machine"].get("trained_on") or []
         return cls(
             numerics=NumericsKey.from_dict(key) if key else None,
+            machines=tuple(NumericsKey.from_dict(e["numerics"]) for e in trained),
             success={
                 arm: {cond: (int(c["successes"]), int(c["n"])) for cond, c in conds.items()}
                 for arm, conds in report["success"].items()
@@ -66,6 +74,7 @@ class BlockData:
             "numerics": self.numerics.to_dict() if self.numerics else None,
             "success": {arm: {c: list(kn) for c, kn in conds.items()} for arm, conds in self.success.items()},
             "alignment": self.alignment,
+            **({"machines": [k.to_dict() for k in self.machines]} if self.machines else {}),
         }
         text = json.dumps(data, separators=(",", ":"))
         if "--" in text:  # would end the HTML comment early
@@ -92,6 +101,7 @@ class BlockData:
                 alignment={
                     arm: {m: float(v) for m, v in vals.items()} for arm, vals in data["alignment"].items()
                 },
+                machines=tuple(NumericsKey.from_dict(k) for k in data.get("machines", [])),
             )
         except (json.JSONDecodeError, KeyError, TypeError, IndexError) as e:
             raise ValueError(

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +35,7 @@ from gazereg.report.tables import (
 from gazereg.runtime.io import atomic_write_json, atomic_write_text
 from gazereg.training.arms import gaze_controls
 from gazereg.training.logger import read_metrics
+from gazereg.training.numerics import TrainingAttempt
 
 MIN_TASK_LEVEL_TASKS = 3
 """the fewest tasks for which the report takes the task as the unit too (with two, the t interval has one
@@ -96,6 +97,9 @@ class StageOutputs:
     date: str
     stage_times: dict[str, float]
     """seconds per finished stage"""
+    numerics: dict[RunId, tuple[TrainingAttempt, ...] | None] = field(default_factory=dict)
+    """each run's training attempts as its numerics.json recorded them (`training.numerics`), None for a run
+    that has none; the report names their machines (`tables.machine_summary`); empty: none recorded"""
 
 
 def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str, Any]:
@@ -177,7 +181,9 @@ def _header(spec: ReportSpec, outputs: StageOutputs) -> dict[str, Any]:
     return {
         "preset": spec.preset,
         "date": outputs.date,
-        "machine": machine_summary(trained_precisions(outputs.metrics_files)),
+        "machine": machine_summary(
+            trained_precisions(outputs.metrics_files), {str(run): a for run, a in outputs.numerics.items()}
+        ),
         "wall_time_s": sum(outputs.stage_times.values()),
         "stage_times_s": dict(outputs.stage_times),
         "tasks": list(spec.tasks),

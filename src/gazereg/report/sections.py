@@ -15,7 +15,11 @@ def numerics_text(machine: dict[str, Any]) -> str:
     `NumericsKey.describe` with the CPU model where the runs trained in one recorded precision; otherwise what
     is known (precisions that differ between runs, or none recorded: a report pooled from archives) and the CPU
     the report itself was made on, said to be that; "numerics not recorded" for a report made before the
-    machine record named them."""
+    machine record named them. Where the runs recorded their keys when they trained ("trained_on"), the phrase
+    is that key with the training CPU's model, or, for runs trained on machines whose keys differ, "trained on
+    several machines: " and each key with its runs (`trained_on_text`)."""
+    if machine.get("trained_on"):
+        return trained_on_text(machine)
     if machine.get("numerics"):
         return NumericsKey.from_dict(machine["numerics"]).describe(machine.get("cpu_model"))
     if "cpu_capability" not in machine:
@@ -32,6 +36,25 @@ def numerics_text(machine: dict[str, Any]) -> str:
         f"{precision}; this report was made on a CPU with torch capability {machine['cpu_capability']} and "
         f"bf16 instructions {isa}, which need not be the one that trained"
     )
+
+
+def trained_on_text(machine: dict[str, Any]) -> str:
+    """The numerics the runs recorded when they trained (report.json's machine "trained_on" and
+    "unrecorded_runs", `tables.machine_summary`): the one key with its CPU model(s) where every run recorded
+    it; otherwise each key with its runs, and the runs that recorded none."""
+    keys = machine["trained_on"]
+
+    def described(entry: dict[str, Any]) -> str:
+        models = " / ".join(entry["cpu_models"]) or None
+        return NumericsKey.from_dict(entry["numerics"]).describe(models)
+
+    if machine.get("numerics"):
+        return described(keys[0])
+    listed = "; ".join(f"{described(e)} (runs {', '.join(e['runs'])})" for e in keys)
+    unrecorded = machine.get("unrecorded_runs") or []
+    head = "trained on several machines" if len(keys) > 1 else "numerics recorded by some runs only"
+    tail = f"; not recorded for (part of) {', '.join(unrecorded)}" if unrecorded else ""
+    return f"{head}: {listed}{tail}"
 
 
 def demos_text(demos: dict[str, Any]) -> str:

@@ -13,7 +13,7 @@ import os
 import platform
 import statistics
 from collections import defaultdict
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any, Literal
 
 import torch
@@ -28,6 +28,7 @@ from gazereg.evaluation.stats import (
 )
 from gazereg.report.ids import RunId
 from gazereg.runtime.hardware import BF16_CPU_FLAGS, NumericsKey, cpu_flags, cpu_identity
+from gazereg.training.numerics import TrainingAttempt
 
 
 def run_of(record: dict[str, Any]) -> RunId:
@@ -281,15 +282,31 @@ def verdict(
     return out or [f"Only the {reference} arm ran: no comparison."]
 
 
-def machine_summary(run_precisions: dict[str, str | None] | None = None) -> dict[str, Any]:
+def machine_summary(
+    run_precisions: dict[str, str | None] | None = None,
+    run_numerics: Mapping[str, Sequence[TrainingAttempt] | None] | None = None,
+) -> dict[str, Any]:
     """The machine a report ran on: architecture, cores, torch and Python versions, the GPU's name (or None),
-    the CPU's model, torch's CPU capability, the bf16 instruction sets present, and, from `run_precisions`
-    ({run: the precision it trained in, None where not recorded}; None for a report without training), the
-    training precision: "precision" (the runs' one precision, else None) and "numerics" (the
-    `NumericsKey.to_dict()` of that precision on this machine, else None)."""
+    the CPU's model, torch's CPU capability, the bf16 instruction sets present, and the training's numerics.
+
+    `run_numerics` ({run: the attempts its numerics.json recorded, None for a run that has none}) names the
+    machines that trained: where every run recorded one key, "numerics" is that key (not this machine's) and
+    "precision" its precision; where they differ, or only some runs recorded one, "numerics" is None; either
+    way "trained_on" lists each distinct key with its CPU models and runs (`trained_on`) and
+    "unrecorded_runs" the runs (or parts of runs) trained where none was recorded. Where no run recorded a key
+    (runs made before numerics.json; None: a report without training) the precision comes from
+    `run_precisions` ({run: the precision its config.json records, None where none}): "precision" is the runs'
+    one precision (else None) and "numerics" the `NumericsKey.to_dict()` of it on this machine (else None)."""
     runs = dict(run_precisions or {})
     found = set(runs.values())
     precision = found.pop() if len(found) == 1 else None
+    recorded = trained_on(run_numerics or {})
+    if recorded is None:  # runs made before numerics.json: this machine's key in their precision
+        numerics = NumericsKey.here(precision).to_dict() if precision is not None else None
+    else:
+        keys, unrecorded = recorded
+        numerics = keys[0]["numerics"] if len(keys) == 1 and not unrecorded else None
+        precision = numerics["precision"] if numerics is not None else None
     return {
         "summary": f"{platform.machine()} CPU, {os.cpu_count()} cores, torch {torch.__version__}, Python {platform.python_version()}",
         "cores": os.cpu_count(),
@@ -301,5 +318,27 @@ def machine_summary(run_precisions: dict[str, str | None] | None = None) -> dict
         "bf16_isa": sorted(cpu_flags() & BF16_CPU_FLAGS),
         "precision": precision,
         "run_precisions": runs,
-        "numerics": NumericsKey.here(precision).to_dict() if precision is not None else None,
+        "numerics": numerics,
+        **({"trained_on": recorded[0], "unrecorded_runs": recorded[1]} if recorded is not None else {}),
     }
+
+
+def trained_on(
+    run_numerics: Mapping[str, Sequence[TrainingAttempt] | None],
+) -> tuple[list[dict[str, Any]], list[str]] | None:
+    """(each distinct recorded key as {"numerics": its to_dict(), "cpu_models": [...], "runs": [...]}, in
+    the order first met over the runs sorted by name; the runs with an attempt, or with no record, whose key
+    is not known), or None when no run recorded any key."""
+    keys: dict[NumericsKey, dict[str, Any]] = {}
+    unrecorded: list[str] = []
+    for run in sorted(run_numerics):
+        attempts = run_numerics[run]
+        if not attempts or any(a.key is None for a in attempts):
+            unrecorded.append(run)
+        for a in attempts or ():
+            if a.key is not None:
+                entry = keys.setdefault(a.key, {"numerics": a.key.to_dict(), "cpu_models": [], "runs": []})
+                for name, value in (("cpu_models", a.cpu_model), ("runs", run)):
+                    if value is not None and value not in entry[name]:
+                        entry[name].append(value)
+    return (list(keys.values()), unrecorded) if keys else None

@@ -10,7 +10,8 @@ larger than the training samples and a gaze prior that does not fit what it woul
 At the start `setup` removes the temporaries that killed writers left in the run folder. With `resume` it
 reads the newest checkpoint that reads completely (a damaged newer one is skipped with a warning) and refuses
 a config that differs from the checkpoint's in anything but the execution keys (training.config); without a
-checkpoint the run starts clean (metrics.jsonl of a run killed before its first checkpoint is emptied).
+checkpoint the run starts clean (metrics.jsonl of a run killed before its first checkpoint is emptied). Each
+attempt that trains a step records this machine's numerics key in numerics.json (training.numerics).
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ from gazereg.training.guards import check_batch_size, gaze_camera_for
 from gazereg.training.init_from import init_policy, init_record, read_init, write_init_record
 from gazereg.training.location import HEAD_NAME, LocationHead, make_location_head
 from gazereg.training.logger import MetricsFile, NullLogger, make_logger
+from gazereg.training.numerics import record_numerics
 from gazereg.training.schedule import lr_lambda, param_groups
 
 log = logging.getLogger(__name__)
@@ -349,6 +351,7 @@ def setup(cfg: TrainConfig) -> Run:
     gaze_spec, head = gaze_parts(cfg, built)
     opt, sched, ema = make_optimiser(policy, cfg, head)
     metrics = MetricsFile(run_dir / "metrics.jsonl")
+    stop = min(cfg.steps, cfg.stop_at) if cfg.stop_at is not None else cfg.steps
     start = 0
     if ckpt is not None:
         check_resume_config(ckpt, cfg)
@@ -361,9 +364,10 @@ def setup(cfg: TrainConfig) -> Run:
         save_config(cfg, run_dir / "config.json")
         if built.init is not None:
             write_init_record(run_dir, built.init)
+        if start < stop:  # the machine that trains these steps (training.numerics)
+            record_numerics(run_dir, cfg.mixed_precision, start)
     acc.wait_for_everyone()
     model, opt = acc.prepare(policy, opt)
-    stop = min(cfg.steps, cfg.stop_at) if cfg.stop_at is not None else cfg.steps
     rank, world = acc.process_index, acc.num_processes
     sampler = StepBatchSampler(len(built.train_set), cfg.batch_size, cfg.seed, stop, start, rank, world)
     g = cfg.gaze
