@@ -2,13 +2,16 @@
 
     bash scripts/libero_env.sh python benchmarks/bench_libero.py [--steps 200] [--suite libero_spatial]
     bash scripts/libero_env.sh python benchmarks/bench_libero.py --expert-inits 5 [--expert-noise 0.1]
+    bash scripts/libero_env.sh python benchmarks/bench_libero.py --suite libero_object --expert-inits 20 \
+        --out docs/benchmarks/libero_object_expert.json
 
 Needs the LIBERO venv (scripts/libero_env.sh); elsewhere prints {"skipped": "..."} and exits 0. Times zero
 actions (arm still) on one task, excluding build and reset, plus physics-only steps (no cameras) for
 comparison, with the render copy's simplified meshes (LiberoEnv's default) and with the full meshes, and the
-time of a reset. `--expert-inits N` instead rolls `SpatialExpert` out on initial states
-0..N-1 of every LIBERO-Spatial task (physics only, no cameras: the expert reads object poses) and reports
-successes, episode lengths and wall time per task. Prints one JSON object.
+time of a reset. `--expert-inits N` instead rolls the suite's scripted expert (`make_expert`: SpatialExpert,
+ObjectExpert) out on initial states 0..N-1 of every task of `--suite` (physics only, no cameras: the expert
+reads object poses) and reports successes, failed initial states, episode lengths and wall time per task.
+Prints one JSON object; `--out PATH` also writes it there (atomically), with the machine line.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import json
 import os
 import sys
 import time
+from pathlib import Path
 
 from _timing import machine_info
 
@@ -62,21 +66,23 @@ def run(
     }
 
 
-def expert_report(inits: int, noise: float, max_steps: int) -> dict[str, object]:
-    """SpatialExpert's success on initial states 0..inits-1 of each LIBERO-Spatial task."""
+def expert_report(suite: str, inits: int, noise: float, max_steps: int) -> dict[str, object]:
+    """The suite's expert (`make_expert`) on initial states 0..inits-1 of each of its tasks."""
+    from gazereg.envs.libero.collector import make_expert
     from gazereg.envs.libero.env import LiberoEnv
-    from gazereg.envs.libero.expert import SpatialExpert
+    from gazereg.envs.libero.setup import import_libero, suite_benchmark
     from gazereg.envs.recording import noise_seed
 
+    import_libero(None)  # LIBERO's config, without its prompts
     tasks = {}
     t_all = time.perf_counter()
-    for t in range(10):
-        env = LiberoEnv(f"libero_spatial/{t}", cameras=(), max_steps=max_steps)
+    for t in range(len(suite_benchmark(suite).get_task_names())):
+        env = LiberoEnv(f"{suite}/{t}", cameras=(), max_steps=max_steps)
         t0 = time.perf_counter()
         ok, lengths, failed = 0, [], []
         for k in range(inits):
             env.reset(seed=k)
-            expert = SpatialExpert(noise=noise)
+            expert = make_expert(suite, noise)
             expert.reset(env, noise_seed(env.task, k))
             for step in range(1, max_steps + 1):  # noqa: B007 (step is the episode length)
                 _, _, terminated, truncated, info = env.step(expert(env))
@@ -88,7 +94,8 @@ def expert_report(inits: int, noise: float, max_steps: int) -> dict[str, object]
             else:
                 failed.append(k)
         tasks[env.task_names[t]] = {
-            "task": f"libero_spatial/{t}",
+            "task": f"{suite}/{t}",
+            "instruction": env.instruction,
             "successes": ok,
             "n": inits,
             "failed_init_states": failed,
@@ -100,14 +107,26 @@ def expert_report(inits: int, noise: float, max_steps: int) -> dict[str, object]
         print(f"{env.task_names[t]}: {ok}/{inits}", file=sys.stderr, flush=True)
     total = sum(v["successes"] for v in tasks.values())
     return {
+        "suite": suite,
+        "expert": type(expert).__name__,
         "init_states": list(range(inits)),
         "action_noise": noise,
         "max_steps": max_steps,
         "successes": total,
-        "n": 10 * inits,
+        "n": len(tasks) * inits,
         "seconds": time.perf_counter() - t_all,
         "tasks": tasks,
     }
+
+
+def emit(out: dict[str, object], path: Path | None) -> None:
+    """Print `out` as JSON and, with `path`, write it there atomically."""
+    text = json.dumps(out, indent=1)
+    print(text)
+    if path is not None:
+        from gazereg.runtime.io import atomic_write_text
+
+        atomic_write_text(path, text + "\n")
 
 
 def main() -> int:
@@ -118,7 +137,10 @@ def main() -> int:
     ap.add_argument("--expert-inits", type=int, default=0, help="report the expert on this many init states")
     ap.add_argument("--expert-noise", type=float, default=0.0)
     ap.add_argument("--expert-max-steps", type=int, default=300)
+    ap.add_argument("--out", type=Path, default=None, help="also write the JSON here")
     args = ap.parse_args()
+    if args.out is not None and not args.out.parent.is_dir():
+        ap.error(f"--out: the folder {args.out.parent} does not exist")
     from gazereg.envs.libero.setup import libero_available
 
     ok, why = libero_available()
@@ -126,8 +148,13 @@ def main() -> int:
         print(json.dumps({"benchmark": "libero", "skipped": why}))
         return 0
     if args.expert_inits > 0:
-        report = expert_report(args.expert_inits, args.expert_noise, args.expert_max_steps)
-        print(json.dumps({"benchmark": "libero_expert", **report}, indent=1))
+        from gazereg.envs.libero.collector import EXPERTS
+
+        if args.suite not in EXPERTS:
+            ap.error(f"--suite {args.suite}: no scripted expert (experts: {', '.join(EXPERTS)})")
+        machine = machine_info()  # before the run: its load average is the one the run started under
+        report = expert_report(args.suite, args.expert_inits, args.expert_noise, args.expert_max_steps)
+        emit({"benchmark": "libero_expert", "machine": machine, **report}, args.out)
         return 0
     from gazereg.envs.render import select_gl_backend
 
@@ -147,7 +174,7 @@ def main() -> int:
         "physics_only": run(args.suite, args.steps, (), args.size),
         "load_avg_after": os.getloadavg()[0],
     }
-    print(json.dumps(out, indent=1))
+    emit(out, args.out)
     return 0
 
 

@@ -122,17 +122,29 @@ def clean_dim_noise_10() -> EvalConfig:
     return EvalConfig(episodes=10, conditions=("clean", "dim:0.7", "gaussian_noise:0.5"))
 
 
-def libero_spatial_25() -> EvalConfig:
-    """LIBERO-Spatial task by task on initial states 25..49 (220 steps, clean), leaving 0..24 to
+def libero_suite_25(suite: str, max_steps: int) -> EvalConfig:
+    """A LIBERO suite's 10 tasks one by one on initial states 25..49 (clean, `max_steps` steps), leaving 0..24 to
     `gazereg collect --env libero`; one worker per core."""
     return EvalConfig(
         env="libero",
-        tasks=tuple(f"libero_spatial/{k}" for k in range(10)),
+        tasks=tuple(f"{suite}/{k}" for k in range(10)),
         episodes=25,
         seed_start=25,
-        max_steps=220,
+        max_steps=max_steps,
         workers=os.cpu_count() or 2,
     )
+
+
+def libero_spatial_25() -> EvalConfig:
+    """LIBERO-Spatial task by task on initial states 25..49 (220 steps, clean), leaving 0..24 to
+    `gazereg collect --env libero`; one worker per core."""
+    return libero_suite_25("libero_spatial", 220)
+
+
+def libero_object_25() -> EvalConfig:
+    """LIBERO-Object task by task on initial states 25..49 (280 steps, the standard evaluations' length, clean),
+    leaving 0..24 to `gazereg collect --env libero`; one worker per core."""
+    return libero_suite_25("libero_object", 280)
 
 
 ALOHA_TASKS = ("AlohaTransferCube-v0", "AlohaInsertion-v0")
@@ -169,6 +181,7 @@ def presets() -> dict[str, Callable[[], EvalConfig]]:
         "clean-dim-2": clean_dim_2,
         "clean-dim-noise-10": clean_dim_noise_10,
         "libero-spatial-25": libero_spatial_25,
+        "libero-object-25": libero_object_25,
         "aloha-50": aloha_50,
         "robustness-50": robustness_50,
     }

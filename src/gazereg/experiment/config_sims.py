@@ -1,6 +1,6 @@
 """The experiment presets of the simulators other than Meta-World: LIBERO-Spatial (`libero`, its toy-size
-`libero_smoke`) and Gym-Aloha (`aloha`). Each runs in its simulator's lane (scripts/libero_env.sh,
-scripts/aloha_lane.sh); they register in `gazereg.experiment.config.PRESETS` when this module is imported
+`libero_smoke`), LIBERO-Object (`libero_object`) and Gym-Aloha (`aloha`). Each runs in its simulator's lane
+(scripts/libero_env.sh, scripts/aloha_lane.sh); they register in `gazereg.experiment.config.PRESETS` when this module is imported
 (the package's __init__ does), so `--preset NAME` finds them like the others.
 """
 
@@ -18,25 +18,23 @@ from gazereg.training.config import ci as ci_train
 from gazereg.training.config import cpu as cpu_train
 
 
-def libero() -> ExperimentConfig:
-    """LIBERO-Spatial, the paper's benchmark (`bash scripts/libero_env.sh gazereg experiment --preset libero`):
-    baseline, gaze (visuomotor), cross-fitted glc and perturbed gaze, one training seed, its 10 tasks from the
+def libero_suite(eval_preset: str, out: Path) -> ExperimentConfig:
+    """The LIBERO experiment over the 10 tasks of the evaluation budget `eval_preset` (`libero-spatial-25`,
+    `libero-object-25`): baseline, gaze (visuomotor), cross-fitted glc and perturbed gaze, one training seed, the
     agentview camera at 128 px (patches of 16 px: the 8 x 8 grid of the other presets), evaluated on initial
-    states 25..49 (the evaluation budget `libero-spatial-25`, 220 steps) clean, and on the first 5 of them per
-    task dimmed (`dim:0.7`) and with sensor noise (`gaussian_noise:0.5`): 250 pairs per arm clean, 50 per
-    perturbed condition.
+    states 25..49 clean, and on the first 5 of them per task dimmed (`dim:0.7`) and with sensor noise
+    (`gaussian_noise:0.5`): 250 pairs per arm clean, 50 per perturbed condition.
 
-    Demonstrations: the expert on initial states 0..24 only (`demo_max_failures=0`: a failure is not replaced
-    by a state the evaluation uses); a task keeps fewer where the expert fails, and the report counts them.
-    glc: two fold GLCs (tasks 0-4 and 5-9), each trained 300 steps on the other half's demonstrations, so no
-    task's glc prior comes from a GLC that saw its gaze. Success-versus-steps is not evaluated
-    (`convergence_points=1`): a curve would cost another evaluation per checkpoint. Why 220 steps, and the
-    time on 2 cores: docs/presets.md."""
-    ev = eval_presets()["libero-spatial-25"]()
+    Demonstrations: the suite's expert on initial states 0..24 only (`demo_max_failures=0`: a failure is not
+    replaced by a state the evaluation uses); a task keeps fewer where the expert fails, and the report counts
+    them. glc: two fold GLCs (tasks 0-4 and 5-9), each trained 300 steps on the other half's demonstrations, so
+    no task's glc prior comes from a GLC that saw its gaze. Success-versus-steps is not evaluated
+    (`convergence_points=1`): a curve would cost another evaluation per checkpoint."""
+    ev = eval_presets()[eval_preset]()
     tasks = ev.tasks
     t = cpu_train()
     return ExperimentConfig(
-        out=Path("runs/libero"),
+        out=out,
         env="libero",
         tasks=tasks,
         camera="agentview_rgb",
@@ -60,6 +58,20 @@ def libero() -> ExperimentConfig:
         convergence_points=1,
         convergence_episodes=ev.episodes,
     )
+
+
+def libero() -> ExperimentConfig:
+    """LIBERO-Spatial, the paper's benchmark (`bash scripts/libero_env.sh gazereg experiment --preset libero`):
+    `libero_suite` over its 10 tasks (the evaluation budget `libero-spatial-25`, 220 steps), demonstrations
+    by `SpatialExpert`. Why 220 steps, and the time on 2 cores: docs/presets.md."""
+    return libero_suite("libero-spatial-25", Path("runs/libero"))
+
+
+def libero_object() -> ExperimentConfig:
+    """LIBERO-Object (`bash scripts/libero_env.sh gazereg experiment --preset libero_object`): `libero_suite`
+    over its 10 tasks, an item into the basket (the evaluation budget `libero-object-25`, 280 steps),
+    demonstrations by `ObjectExpert` (its success per task: docs/benchmarks/libero_object_expert.json)."""
+    return libero_suite("libero-object-25", Path("runs/libero_object"))
 
 
 def libero_smoke() -> ExperimentConfig:
@@ -127,4 +139,6 @@ def aloha() -> ExperimentConfig:
     )
 
 
-PRESETS.update({"libero": libero, "libero_smoke": libero_smoke, "aloha": aloha})
+PRESETS.update(
+    {"libero": libero, "libero_object": libero_object, "libero_smoke": libero_smoke, "aloha": aloha}
+)

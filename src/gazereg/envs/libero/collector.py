@@ -1,6 +1,10 @@
-"""LIBERO-Spatial demonstrations: `SpatialExpert` rolled out into episodes (`gazereg collect --env libero`).
+"""LIBERO demonstrations: the suite's scripted expert rolled out into episodes (`gazereg collect --env libero`).
 
     ep, summary = rollout_libero_expert(env, seed=3)    # on setup 3 of a LiberoEnv (one task or a suite)
+    make_expert("libero_object", noise=0.1)             # the suite's expert (EXPERTS)
+
+Experts: LIBERO-Spatial `SpatialExpert` (a bowl onto the plate), LIBERO-Object `ObjectExpert` (an item into the
+basket); LIBERO-Goal and LIBERO-10 have none yet.
 
 The episode's task is LIBERO's task name (as `gazereg import hdf5` names LIBERO's demonstrations); its meta:
 seed, setup (suite, task index, initial state), success, fps, env, env_name, steps, expert, the expert's grasp,
@@ -17,10 +21,21 @@ import numpy as np
 
 from gazereg.data.store import Episode
 from gazereg.envs.libero.env import ACTION_LAYOUT, STATE_LAYOUT, LiberoEnv
-from gazereg.envs.libero.expert import SpatialExpert
+from gazereg.envs.libero.expert import PickPlaceExpert, SpatialExpert
+from gazereg.envs.libero.expert_object import ObjectExpert
 from gazereg.envs.libero.setup import import_libero, libero_available, resolve_task, suite_benchmark
 from gazereg.envs.perturbations import parse_perturbation
 from gazereg.envs.recording import noise_seed, record_rollout, summary_of, versions
+
+# The scripted expert of each suite that has one.
+EXPERTS: dict[str, type[PickPlaceExpert]] = {"libero_spatial": SpatialExpert, "libero_object": ObjectExpert}
+
+
+def make_expert(suite: str, noise: float = 0.0) -> PickPlaceExpert:
+    """A new expert for the tasks of `suite` with action noise `noise`; ValueError for a suite without one."""
+    if suite not in EXPERTS:
+        raise ValueError(f"no scripted LIBERO expert for {suite!r}; experts cover {', '.join(EXPERTS)}")
+    return EXPERTS[suite](noise=noise)
 
 
 def rollout_libero_expert(
@@ -28,12 +43,12 @@ def rollout_libero_expert(
     seed: int,
     action_noise: float = 0.0,
     max_steps: int | None = None,
-    expert: SpatialExpert | None = None,
+    expert: PickPlaceExpert | None = None,
 ) -> tuple[Episode, dict[str, Any]]:
-    """Roll the spatial expert out on setup `seed` of `env`.
+    """Roll the suite's expert (`make_expert`) out on setup `seed` of `env`.
 
     Returns the Episode (also when it failed: meta["success"] says) and the summary `gazereg collect` logs."""
-    expert = expert or SpatialExpert(noise=action_noise)
+    expert = expert or make_expert(env.suite, action_noise)
     started = False
 
     def act(obs: dict[str, Any], info: dict[str, Any]) -> np.ndarray:
@@ -67,16 +82,19 @@ def rollout_libero_expert(
 
 
 class LiberoCollector:
-    """`gazereg collect --env libero`: LIBERO-Spatial tasks rolled out by `SpatialExpert`.
+    """`gazereg collect --env libero`: the tasks of the suites with a scripted expert (EXPERTS), each rolled out
+    by its suite's.
 
-    Tasks: `libero_spatial` (its 10 tasks), `libero_spatial/3`, `libero_spatial/<task name>`; canonical form
-    `libero_spatial/<index>`. Seed s is the task's fixed initial state s % 50."""
+    Tasks: a suite (`libero_spatial`, `libero_object`: its 10 tasks), `libero_object/3`,
+    `libero_object/<task name>`; canonical form `<suite>/<index>`. Seed s is the task's fixed initial state
+    s % 50. Episodes are `default_max_steps` long unless `--max_steps` says otherwise (LIBERO-Spatial's
+    evaluation length; the experts finish LIBERO-Object's tasks within it too: docs/benchmarks/)."""
 
     name = "libero"
     default_cameras = ("agentview_rgb", "eye_in_hand_rgb")  # the names `gazereg import hdf5` gives them
     default_max_steps = 220  # LIBERO-Spatial's evaluation length
     max_steps_limit = 10_000
-    suites = ("libero_spatial",)
+    suites = tuple(EXPERTS)
 
     def tasks(self, requested: Sequence[str]) -> tuple[str, ...]:
         """Canonical task specs (suites expanded); ValueError/KeyError for unknown or unsupported ones."""
@@ -89,8 +107,8 @@ class LiberoCollector:
             suite, index = resolve_task(spec)
             if suite not in self.suites:
                 raise ValueError(
-                    f"{spec!r}: the scripted LIBERO expert covers {', '.join(self.suites)} only "
-                    "(pick-and-place of a bowl onto the plate)"
+                    f"{spec!r}: the scripted LIBERO experts cover {', '.join(self.suites)} only "
+                    "(a bowl onto the plate, an item into the basket)"
                 )
             n = len(suite_benchmark(suite).get_task_names())
             out += [f"{suite}/{i}" for i in (range(n) if index is None else [index])]

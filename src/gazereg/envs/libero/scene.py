@@ -78,6 +78,12 @@ class Boxes:
         """(n,) the highest world z of each box."""
         return self.centre[:, 2] + np.einsum("nj,nj->n", np.abs(self.rot[:, 2, :]), self.half)
 
+    def corners(self) -> np.ndarray:
+        """(8 n, 3) the world corners of every box."""
+        signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], dtype=np.float64)
+        local = signs[None] * self.half[:, None, :]  # (n, 8, 3)
+        return (self.centre[:, None, :] + np.einsum("nij,ncj->nci", self.rot, local)).reshape(-1, 3)
+
     def distance(self, points: np.ndarray) -> np.ndarray:
         """(P, n) distance (metres) from each of P points (P, 3) to each box (0 inside)."""
         local = np.einsum("nji,pnj->pni", self.rot, points[:, None, :] - self.centre[None])
@@ -128,11 +134,15 @@ class SceneFacts:
         if not all(len(p) for p in self._pads):
             raise RuntimeError(f"gripper {type(gripper).__name__} has no finger pad geoms in the model")
         self._obj_geoms = np.zeros(0, dtype=np.int64)
-        owner = self.roles.obj
-        if owner in sites:
-            owner = env.object_sites_dict[owner].parent_name
+        owner = None if self.roles.obj is None else self.owner(self.roles.obj)
         if owner is not None and owner in env.obj_body_id:
             self._obj_geoms = _subtree_geoms(m, int(env.obj_body_id[owner]))
+
+    def owner(self, name: str) -> str:
+        """The object or fixture `name` belongs to: a region's parent (LIBERO-Object's `basket_1_contain_region`
+        -> `basket_1`), an object or fixture itself."""
+        sites = self._env.object_sites_dict
+        return str(sites[name].parent_name) if name in sites else name
 
     def position(self, name: str) -> np.ndarray:
         """World position (3,) of an object, fixture (root body origin) or region (site), metres."""
