@@ -35,6 +35,7 @@ RECORDS = {
     "stages/manifest.json",
     "stages/train.json",
     "train/metrics.jsonl.gz",
+    "train/numerics.json",
 }
 PAGE = "# Pretraining\n<!-- pretrain-ml45:start -->\nold\n<!-- pretrain-ml45:end -->\nend\n"
 
@@ -83,6 +84,9 @@ def test_the_archive_keeps_exactly_the_records_and_no_weights_or_demos(pretraine
     assert (archived / "config.json").read_bytes() == (pretrained / "config.json").read_bytes()
     metrics = gzip.decompress((archived / "train" / "metrics.jsonl.gz").read_bytes())
     assert metrics == (pretrained / "train" / "metrics.jsonl").read_bytes()
+    attempts = json.loads((pretrained / "manifest.json").read_text())["training_attempts"]
+    recorded = json.loads((archived / "train" / "numerics.json").read_text())["attempts"]
+    assert attempts == recorded and len(attempts) == 1 and attempts[0]["start_step"] == 0
     squeezed = archive(pretrained, tmp_path / "gz", gzip_above=0)  # a large evaluation is compressed
     assert files(squeezed) == RECORDS | {"eval/eval_info.json.gz"}
     again = archive(squeezed, tmp_path / "again")  # an archive of an archive keeps it so

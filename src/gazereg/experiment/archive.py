@@ -84,10 +84,13 @@ def archived_files(source: Path, runs: Sequence[RunId]) -> tuple[list[Path], lis
 
 def pretraining_files(source: Path, gzip_above: int = GZIP_ABOVE) -> tuple[list[Path], list[Path]]:
     """(files kept as they are, files kept compressed), relative to the pretraining folder `source`:
-    config.json, manifest.json and the stage records as they are; eval/eval_info.json as it is up to
+    config.json, manifest.json, the stage records and train/numerics.json (where training recorded it) as
+    they are; eval/eval_info.json as it is up to
     `gzip_above` bytes, else compressed (kept compressed when `source` is an archive that has it so); and
     train/metrics.jsonl compressed. Nothing else: no demonstrations, checkpoints or policy weights."""
     plain = [Path(CONFIG_FILE), Path(MANIFEST_FILE), *_stage_records(source)]
+    if (source / TRAIN_DIR / NUMERICS_FILE).is_file():  # the machines it trained on (training.numerics)
+        plain.append(Path(TRAIN_DIR) / NUMERICS_FILE)
     info = Path(EVAL_DIR) / EVAL_INFO
     squeezed = [Path(TRAIN_DIR) / METRICS_FILE]
     if (source / info).is_file() and (source / info).stat().st_size <= gzip_above:

@@ -63,6 +63,7 @@ from gazereg.runtime.pool import fingerprint_json
 from gazereg.training.checkpoint import latest_checkpoint, list_checkpoints
 from gazereg.training.init_from import file_sha256
 from gazereg.training.loop import train
+from gazereg.training.numerics import read_numerics
 
 log = logging.getLogger(__name__)
 
@@ -255,6 +256,7 @@ class Pretraining:
                 "finetune_flags": finetune_flags(self.cfg.train.policy),
             },
             "numerics": NumericsKey.here(trained["mixed_precision"]).to_dict(),
+            "training_attempts": _attempts(self.train_dir),
             "evaluation": {
                 "setup_seeds": [PRETRAIN_EVAL.start, PRETRAIN_EVAL.start + self.cfg.eval_episodes],
                 "pooled": results["eval"]["pooled"],
@@ -264,6 +266,13 @@ class Pretraining:
             "versions": versions(("gazereg", "torch", "metaworld", "mujoco")),
             "config": to_dict(self.cfg),
         }
+
+
+def _attempts(train_dir: Path) -> list[dict[str, Any]] | None:
+    """The numerics key of each training attempt (`training.numerics`: where the train stage ran, which may
+    differ from where the manifest is written, `numerics`); None for training made before it was recorded."""
+    attempts = read_numerics(train_dir)
+    return None if attempts is None else [a.to_dict() for a in attempts]
 
 
 def _tensor_sizes(path: Path) -> dict[str, int]:
