@@ -123,3 +123,13 @@ def test_the_libero_object_presets():
     for condition in ecfg.conditions:
         assert not demo_seeds & set(ecfg.seeds(condition)), condition
     assert max(demo_seeds) < min(ecfg.seeds("clean"))
+
+
+def test_libero_demonstrations_may_take_as_long_as_the_evaluation_and_reach_the_collector():
+    """LIBERO-Object's expert needs up to ~230 steps (docs/benchmarks/libero_object_expert.json), more than the
+    collector's default of LIBERO-Spatial's 220: each suite's demonstrations get its evaluation's length."""
+    for name in ("libero", "libero_object"):
+        cfg = PRESETS[name]()
+        assert cfg.demo_max_steps == cfg.eval.max_steps
+        assert {c.max_steps for c in demo_collections(cfg, cfg.out).values()} == {cfg.eval.max_steps}
+    assert PRESETS["quick"]().demo_max_steps == 0  # Meta-World: the simulator's default

@@ -47,6 +47,9 @@ class ExperimentConfig(Validated):
     """extra setups per task (seeds demos_per_task ..) tried in place of the expert's failed rollouts; with 0
     the demonstrations stay on setups 0..demos_per_task-1 and a task keeps fewer where the expert fails (the
     demos stage and the report give the count per task)"""
+    demo_max_steps: int = 0
+    """a demonstration that has not succeeded after this many steps is a failure (0: the simulator's default,
+    `Collector.default_max_steps`)"""
     heldout_per_task: int = 3
     """expert episodes per task on unseen setups, for attention-gaze alignment only"""
     collect_workers: int = 2
@@ -119,6 +122,7 @@ class ExperimentConfig(Validated):
             require_number(side, prefix + "prior_size", 1, integer=True)
         require_number(self.threshold, prefix + "threshold", 0, 1, open_low=True, open_high=True)
         require_number(self.demo_max_failures, prefix + "demo_max_failures", 0, integer=True)
+        require_number(self.demo_max_steps, prefix + "demo_max_steps", 0, integer=True)
         if not self.camera:
             raise UsageError(f"{option(prefix + 'camera')} is empty: name the camera")
         check_simulator(self.env, option(prefix + "env"))

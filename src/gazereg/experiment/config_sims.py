@@ -26,9 +26,9 @@ def libero_suite(eval_preset: str, out: Path) -> ExperimentConfig:
     (`gaussian_noise:0.5`): 250 pairs per arm clean, 50 per perturbed condition.
 
     Demonstrations: the suite's expert on initial states 0..24 only (`demo_max_failures=0`: a failure is not
-    replaced by a state the evaluation uses); a task keeps fewer where the expert fails, and the report counts
-    them. glc: two fold GLCs (tasks 0-4 and 5-9), each trained 300 steps on the other half's demonstrations, so
-    no task's glc prior comes from a GLC that saw its gaze. Success-versus-steps is not evaluated
+    replaced by a state the evaluation uses), each of at most the evaluation's episode length; a task keeps
+    fewer where the expert fails, and the report counts them. glc: two fold GLCs (tasks 0-4 and 5-9), each
+    trained 300 steps on the other half's demonstrations, so no task's glc prior comes from a GLC that saw its gaze. Success-versus-steps is not evaluated
     (`convergence_points=1`): a curve would cost another evaluation per checkpoint."""
     ev = eval_presets()[eval_preset]()
     tasks = ev.tasks
@@ -41,6 +41,7 @@ def libero_suite(eval_preset: str, out: Path) -> ExperimentConfig:
         image_size=128,
         demos_per_task=ev.seed_start,  # the initial states below the evaluation's first
         demo_max_failures=0,
+        demo_max_steps=ev.max_steps,  # a demonstration may take as long as an evaluation episode
         heldout_per_task=2,
         arms=("baseline", "gaze", "glc", "perturbed"),
         glc_steps=300,

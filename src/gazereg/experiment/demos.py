@@ -38,6 +38,7 @@ def demo_collections(cfg: ExperimentConfig, out: Path) -> dict[str, CollectConfi
         tasks=cfg.tasks,
         cameras=(cfg.camera,),
         image_size=cfg.image_size,
+        max_steps=cfg.demo_max_steps,
         workers=cfg.collect_workers,
         gl_backend=cfg.eval.gl_backend or "",
     )
