@@ -28,8 +28,9 @@ def libero_suite(eval_preset: str, out: Path) -> ExperimentConfig:
     Demonstrations: the suite's expert on initial states 0..24 only (`demo_max_failures=0`: a failure is not
     replaced by a state the evaluation uses), each of at most the evaluation's episode length; a task keeps
     fewer where the expert fails, and the report counts them. glc: two fold GLCs (tasks 0-4 and 5-9), each
-    trained 300 steps on the other half's demonstrations, so no task's glc prior comes from a GLC that saw its gaze. Success-versus-steps is not evaluated
-    (`convergence_points=1`): a curve would cost another evaluation per checkpoint."""
+    trained 300 steps on the other half's demonstrations, so no task's glc prior comes from a GLC that saw its
+    gaze. Success-versus-steps is not evaluated (`convergence_points=1`): a curve would cost another
+    evaluation per checkpoint."""
     ev = eval_presets()[eval_preset]()
     tasks = ev.tasks
     t = cpu_train()
