@@ -12,6 +12,7 @@ time of a reset. `--expert-inits N` instead rolls the suite's scripted expert (`
 ObjectExpert) out on initial states 0..N-1 of every task of `--suite` (physics only, no cameras: the expert
 reads object poses) and reports successes, failed initial states, episode lengths and wall time per task.
 Prints one JSON object; `--out PATH` also writes it there (atomically), with the machine line.
+`--markdown JSON` measures nothing: it prints an expert JSON's table for docs (no LIBERO needed).
 """
 
 from __future__ import annotations
@@ -129,6 +130,27 @@ def emit(out: dict[str, object], path: Path | None) -> None:
         atomic_write_text(path, text + "\n")
 
 
+def expert_markdown(result: dict, source: str) -> str:
+    """An expert JSON (`--expert-inits`) as a line naming the run and a per-task markdown table."""
+    m = result["machine"]
+    lines = [
+        f"{result['expert']} on initial states {result['init_states'][0]}..{result['init_states'][-1]} of "
+        f"{result['suite']}, at most {result['max_steps']} steps, action noise {result['action_noise']}: "
+        f"{result['successes']}/{result['n']}; {m['cpu_model']}, {m['cores']} cores, load average before "
+        f"{m['load_avg_before'][0]}; from `{source}`:",
+        "",
+        "| task | instruction | successes | mean steps | longest | failed initial states |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in sorted(result["tasks"].values(), key=lambda r: int(r["task"].rsplit("/", 1)[1])):
+        failed = ", ".join(map(str, r["failed_init_states"])) or "none"
+        lines.append(
+            f"| {r['task']} | {r['instruction']} | {r['successes']}/{r['n']} | {r['mean_length']:.0f} | "
+            f"{r['max_length']} | {failed} |"
+        )
+    return "\n".join(lines)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=200)
@@ -138,7 +160,16 @@ def main() -> int:
     ap.add_argument("--expert-noise", type=float, default=0.0)
     ap.add_argument("--expert-max-steps", type=int, default=300)
     ap.add_argument("--out", type=Path, default=None, help="also write the JSON here")
+    ap.add_argument(
+        "--markdown", type=Path, default=None, metavar="JSON", help="print an expert JSON's table"
+    )
     args = ap.parse_args()
+    if args.markdown is not None:
+        if not args.markdown.is_file():
+            print(f"bench_libero.py: error: --markdown {args.markdown}: no such file", file=sys.stderr)
+            return 2
+        print(expert_markdown(json.loads(args.markdown.read_text()), args.markdown.name))
+        return 0
     if args.out is not None and not args.out.parent.is_dir():
         ap.error(f"--out: the folder {args.out.parent} does not exist")
     from gazereg.envs.libero.setup import libero_available
