@@ -204,6 +204,122 @@ def test_option_errors_name_the_option(tiny_vlm):
         make_config(tiny_vlm, gaze_divergence="kl")
 
 
+# ----- checks against the model, before it is built --------------------------------------------------------------
+class _Built(Exception):
+    """Raised in place of building the base policy's model: the gaze policy's checks all passed."""
+
+
+def _tiny_gaze_config(policy_type: str, tiny_vlm: Path, **gaze):
+    """A tiny gaze config of each type (SmolVLA over `tiny_vlm`, 4 VLM layers; pi0/pi05 at lerobot's sizes:
+    18 layers, 14 px patches; 16 image tokens either way) with the fixture's features set."""
+    from lerobot_policy_gazereg.testing import tiny_pi_args, tiny_smolvla_args
+
+    base = tiny_smolvla_args(tiny_vlm) if policy_type == "smolvla_gaze" else tiny_pi_args()
+    return _gaze_config(policy_type, **base, gaze_camera="observation.images.front", **gaze)
+
+
+def _never_built(monkeypatch, policy_type: str):
+    """The gaze policy class of `policy_type`, its base policy's __init__ raising _Built: only what the gaze
+    policy checks before it builds its model runs."""
+    from lerobot_policy_gazereg.modeling_pi0_gaze import PI0GazePolicy
+    from lerobot_policy_gazereg.modeling_pi05_gaze import PI05GazePolicy
+    from lerobot_policy_gazereg.modeling_smolvla_gaze import SmolVLAGazePolicy
+
+    cls = {"smolvla_gaze": SmolVLAGazePolicy, "pi0_gaze": PI0GazePolicy, "pi05_gaze": PI05GazePolicy}[
+        policy_type
+    ]
+
+    def build(self, *a, **k):
+        raise _Built
+
+    monkeypatch.setattr(_base_policy(cls), "__init__", build)
+    return cls
+
+
+def _base_policy(cls):
+    """The lerobot policy class a gaze policy class extends (SmolVLAPolicy, PI0Policy, PI05Policy)."""
+    return next(c for c in cls.__mro__[1:] if c.__module__.startswith("lerobot.policies."))
+
+
+LAYER_RANGES = {
+    "smolvla_gaze": "the VLM has 4 layers and the action expert attends at VLM layers [0, 1, 2, 3]",
+    "pi0_gaze": "the model has 18 layers, 0..17",
+    "pi05_gaze": "the model has 18 layers, 0..17",
+}
+
+
+@pytest.mark.parametrize("policy_type", GAZE_TYPES)
+def test_gaze_layers_out_of_range_are_refused_before_the_model_is_built(policy_type, tiny_vlm, monkeypatch):
+    """The issue: a layer index beyond the model's depth raised a traceback from the capture, after the model
+    (and SmolVLA's VLM weights) was built. Now one GazeUsageError names the option, the bad indices and the
+    model's layers before the base policy's __init__ runs; valid layers go on to build it."""
+    from lerobot_policy_gazereg.errors import GazeUsageError
+
+    cls = _never_built(monkeypatch, policy_type)
+    cfg = _tiny_gaze_config(policy_type, tiny_vlm, gaze_layers=[1, 40, -1])
+    want = f"gaze_layers: [40, -1] out of range: {LAYER_RANGES[policy_type]}"
+    with pytest.raises(GazeUsageError, match=f"^{re.escape(want)}$"):
+        cls(cfg)
+    with pytest.raises(GazeUsageError, match=r"^gaze_layers: names no layer: "):
+        cls(_tiny_gaze_config(policy_type, tiny_vlm, gaze_layers=[]))
+    with pytest.raises(_Built):
+        cls(_tiny_gaze_config(policy_type, tiny_vlm, gaze_layers=[1, 3]))
+
+
+@pytest.mark.parametrize("policy_type", GAZE_TYPES)
+def test_a_token_distribution_not_on_the_camera_grid_is_refused_before_the_model_is_built(
+    policy_type, tiny_vlm, tmp_path, dataset_root, monkeypatch
+):
+    """The issue: a (n,) token-distribution column with n != the camera's token count was refused only at the
+    first training forward. Now the policy refuses it before its model is built, naming the column, n and the
+    camera's token count; a column of the grid's 16 values goes on to build it."""
+    from lerobot_policy_gazereg.errors import GazeUsageError
+
+    cls = _never_built(monkeypatch, policy_type)
+    cfg = _tiny_gaze_config(policy_type, tiny_vlm, gaze_key="gaze.tokens")
+    root = _copy_with_gaze(dataset_root, tmp_path / "ds50", "gaze.tokens", np.ones((N_FRAMES, 50)), (50,))
+    want = (
+        "gaze_key=gaze.tokens: the column holds 50 values per frame, read as a distribution over image tokens, "
+        "but camera observation.images.front has 16 image tokens (4x4 grid); store one value per token, "
+        "row-major"
+    )
+    with pytest.raises(GazeUsageError, match=f"^{re.escape(want)}$"):
+        cls(cfg, dataset_meta=_meta(root))
+    root = _copy_with_gaze(dataset_root, tmp_path / "ds16", "gaze.tokens", np.ones((N_FRAMES, 16)), (16,))
+    with pytest.raises(_Built):
+        cls(cfg, dataset_meta=_meta(root))
+    with pytest.raises(_Built):  # the plain policy checks no column
+        cls(_tiny_gaze_config(policy_type, tiny_vlm, gaze_key="gaze.tokens", gaze_weight=0.0))
+
+
+def test_smolvla_checks_the_model_it_then_builds(policy_and_batch):
+    """The layers and token geometry checked before the build (from the VLM's config) are the built model's."""
+    from lerobot_policy_gazereg.modeling_smolvla_gaze import smolvla_camera_geometry, smolvla_gaze_layers
+    from transformers import AutoConfig
+
+    policy, _, _ = policy_and_batch
+    vlm = AutoConfig.from_pretrained(policy.config.vlm_model_name)
+    assert smolvla_gaze_layers(policy.config, vlm)[0] == policy.gaze_capture.expert_layers == [0, 1, 2, 3]
+    assert smolvla_camera_geometry(policy.config, vlm) == policy._geometry()
+    assert policy._geometry()[0].n_patches == 16
+
+
+@pytest.mark.parametrize("policy_type", ["pi0_gaze", "pi05_gaze"])
+def test_pi_checks_the_model_it_then_builds(policy_type, tiny_vlm):
+    """lerobot_model_shape (read from lerobot's configs, tiny ones here: 3 layers, 8 px patches) is the built
+    model's layer count and patch size."""
+    from lerobot_policy_gazereg.modeling_pi0_gaze import PI0GazePolicy
+    from lerobot_policy_gazereg.modeling_pi05_gaze import PI05GazePolicy
+    from lerobot_policy_gazereg.testing import tiny_pi_models
+
+    gp = PI0GazePolicy if policy_type == "pi0_gaze" else PI05GazePolicy
+    with tiny_pi_models(depth=3, patch_size=8):
+        cfg = _tiny_gaze_config(policy_type, tiny_vlm, gaze_layers=[2])
+        policy = gp(cfg)
+        patch = policy.model.paligemma_with_expert.paligemma.config.vision_config.patch_size
+        assert gp.lerobot_model_shape(cfg) == (policy.gaze_capture.depth, patch) == (3, 8)
+
+
 # ----- the real lerobot-train ----------------------------------------------------------------------------------
 def _lerobot_train(
     tmp_path: Path, dataset_root: Path, tiny_vlm: Path, *extra: str
@@ -269,6 +385,34 @@ def test_lerobot_train_names_the_bad_gaze_option(option, line, tmp_path, dataset
     (err,) = _error_lines(r)
     assert err.startswith(f"lerobot-train: error: {line}"), log[-3000:]
     assert "Couldn't instantiate" not in log
+
+
+@pytest.mark.parametrize("case", ["layers", "tokens"])
+def test_lerobot_train_refuses_what_the_model_cannot_take(case, tmp_path, dataset_root, tiny_vlm):
+    """The issues: --policy.gaze_layers beyond the VLM's layers showed a traceback, and a token-distribution column
+    of the wrong length was refused only at the first training forward. Now lerobot-train stops while the policy
+    is built, with one line naming the option or column, exit status 2, no traceback, no training step."""
+    if case == "layers":
+        root, extra = dataset_root, ["--policy.gaze_layers=[1,9]"]
+        line = (
+            "--policy.gaze_layers: [9] out of range: the VLM has 4 layers and the action expert attends at VLM "
+            "layers [0, 1, 2, 3]"
+        )
+    else:
+        root = _copy_with_gaze(dataset_root, tmp_path / "ds", "gaze.tokens", np.ones((N_FRAMES, 50)), (50,))
+        extra = ["--policy.gaze_key=gaze.tokens"]
+        line = (
+            "--policy.gaze_key=gaze.tokens: the column holds 50 values per frame, read as a distribution over "
+            "image tokens, but camera observation.images.front has 16 image tokens (4x4 grid); store one value "
+            "per token, row-major"
+        )
+    r = _lerobot_train(tmp_path, root, tiny_vlm, *extra)
+    log = r.stdout + r.stderr
+    assert r.returncode == 2, log[-3000:]
+    assert _error_lines(r) == [f"lerobot-train: error: {line}"], log[-3000:]
+    assert "Traceback" not in log.split("[end of libtorchcodec loading traceback]")[-1], log[-3000:]
+    assert "Creating policy" in log and "Creating optimizer" not in log, log[-3000:]  # refused in make_policy
+    assert "gaze_kl" not in log and not (tmp_path / "run" / "checkpoints").exists()
 
 
 def test_the_readme_states_the_inactivity_limit():

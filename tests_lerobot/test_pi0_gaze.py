@@ -225,7 +225,7 @@ def test_gaze_options_are_validated(tiny):
     with pytest.raises(ValueError, match="compile_model"):
         GC(compile_model=True)
     assert GC(gradient_checkpointing=True).gradient_checkpointing  # works: see the test below
-    with pytest.raises(ValueError, match=r"layers 0\.\.1"):
+    with pytest.raises(ValueError, match=r"gaze_layers: \[2\] out of range: the model has 2 layers, 0\.\.1"):
         _policies("pi05", gaze_layers=[2])
 
 

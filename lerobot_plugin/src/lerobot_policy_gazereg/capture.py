@@ -32,6 +32,8 @@ from torch import Tensor, nn
 
 from gazereg.attention.probe import AttentionProbe, ProbeSpec, require_grad_mode
 
+from .gaze_common import check_gaze_layers
+
 
 @dataclass
 class _State:
@@ -131,28 +133,35 @@ def _tracking_layers(state: _State, orig: Any, cross: bool) -> Any:
     return run
 
 
+def expert_layers(n_vlm: int, n_expert: int) -> list[int]:
+    """The VLM layer indices (of `n_vlm`) at which SmolVLA's action expert (`n_expert` layers) attends: every
+    `n_vlm // n_expert`-th layer, starting at 0 (all of them when the expert has as many layers)."""
+    multiple = n_vlm // n_expert
+    return [i for i in range(n_vlm) if not (multiple > 0 and i > 0 and i % multiple != 0)]
+
+
+def expert_layers_text(n_vlm: int, layers: list[int]) -> str:
+    """What `--policy.gaze_layers` may name in SmolVLA, for a refusal."""
+    return f"the VLM has {n_vlm} layers and the action expert attends at VLM layers {layers}"
+
+
 class SmolVLACapture(CaptureResults):
     """Capture of `VLAFlowMatching`'s expert-to-image attention on chosen VLM layer indices.
 
     model: the policy's `VLAFlowMatching` (`policy.model`).
     layers: VLM layer indices (0..num_vlm_layers-1) at which the expert attends; None = the second half of
-        the layers that have an expert layer.
+        the layers that have an expert layer; any other index is refused (GazeUsageError naming gaze_layers).
     """
 
     def __init__(self, model: nn.Module, layers: list[int] | tuple[int, ...] | None = None):
         self.model = model
         self.vwe = model.vlm_with_expert
         n = self.vwe.num_vlm_layers
-        multiple = n // self.vwe.num_expert_layers
-        self.expert_layers = [i for i in range(n) if not (multiple > 0 and i > 0 and i % multiple != 0)]
+        self.expert_layers = expert_layers(n, self.vwe.num_expert_layers)
         if layers is None:
             layers = self.expert_layers[len(self.expert_layers) // 2 :]
         self.layers = tuple(int(i) for i in layers)
-        bad = [i for i in self.layers if i not in self.expert_layers]
-        if bad or not self.layers:
-            raise ValueError(
-                f"gaze layers {list(self.layers)} invalid: the action expert attends at VLM layers {self.expert_layers}"
-            )
+        check_gaze_layers(self.layers, self.expert_layers, expert_layers_text(n, self.expert_layers))
         self.state: _State | None = None
 
     # ----- capture ------------------------------------------------------------------------------------------

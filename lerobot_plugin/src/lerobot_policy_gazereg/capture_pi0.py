@@ -28,6 +28,12 @@ from transformers.models.gemma import modeling_gemma
 from gazereg.attention.probe import AttentionProbe, ProbeSpec
 
 from .capture import CaptureResults, counting_tokens
+from .gaze_common import check_gaze_layers
+
+
+def depth_text(depth: int) -> str:
+    """What `--policy.gaze_layers` may name in pi0 / pi0.5 (every layer is joint), for a refusal."""
+    return f"the model has {depth} layers, 0..{depth - 1}"
 
 
 @dataclass
@@ -45,7 +51,8 @@ class PiCapture(CaptureResults):
     """Capture of a `PI0Pytorch` / `PI05Pytorch` model's action-token attention to one camera's image tokens.
 
     model: the policy's core model (`policy.model`).
-    layers: layer indices (0..depth-1); None = the second half of the layers.
+    layers: layer indices (0..depth-1); None = the second half of the layers; any other index is refused
+        (GazeUsageError naming gaze_layers).
     """
 
     def __init__(self, model: nn.Module, layers: list[int] | tuple[int, ...] | None = None):
@@ -55,11 +62,7 @@ class PiCapture(CaptureResults):
         if layers is None:
             layers = range(self.depth // 2, self.depth)
         self.layers = tuple(int(i) for i in layers)
-        bad = [i for i in self.layers if not 0 <= i < self.depth]
-        if bad or not self.layers:
-            raise ValueError(
-                f"gaze layers {list(self.layers)} invalid: the model has layers 0..{self.depth - 1}"
-            )
+        check_gaze_layers(self.layers, range(self.depth), depth_text(self.depth))
         self.state: _State | None = None
 
     # ----- capture ------------------------------------------------------------------------------------------

@@ -1,7 +1,8 @@
 """What every gaze policy type of this plugin (smolvla_gaze, pi0_gaze, pi05_gaze) shares: the gaze options and
 their validation (`GazeOptions`, `validate_gaze_options`), the checks of the data set's gaze column when the policy
-is built (`check_gaze_features`, gaze_data.check_gaze_data) and while it trains (`GazeActivity`), and the gaze term
-added to the policy's loss (`add_gaze_term`).
+is built (`check_gaze_features`, `check_gaze_layers`, build_checks.check_before_build) and while it trains
+(`GazeActivity`), and the gaze term added to the policy's loss (`add_gaze_term`, at the end of each training
+forward: `finish_gaze_forward`).
 
 Several processes (`accelerate launch --multi_gpu --num_processes N lerobot-train ...`, DDP): the gaze term is a
 mean over the valid frames of the GLOBAL batch, as in one process on the same batch. Each process's term is its
@@ -17,8 +18,10 @@ line with exit status 2 (errors.refusing). When each check runs:
 - the gaze column's presence and shape per frame, the flag column and `gaze_camera` (`check_gaze_features`): in
   the config's `set_dataset_feature_metadata`, which lerobot's make_policy calls with the data set's features
   before it builds the policy (before any weights load);
-- the column's content (gaze_data.check_gaze_data): at the start of the policy's __init__, still before weights
-  load: a data set whose whole gaze column has no usable frame is refused;
+- `gaze_layers` against the model's layers, the column's content (gaze_data.check_gaze_data: a data set whose
+  whole gaze column has no usable frame is refused) and a token-distribution column's length against the camera's
+  token grid (build_checks.check_before_build): at the start of the policy's __init__, before the model is built
+  and weights load;
 - while training (`GazeActivity`): when the first INACTIVE_FRAMES_LIMIT training frames (counted over batches)
   all lack usable gaze, e.g. because the episodes trained on (--dataset.episodes) have none.
 
@@ -29,7 +32,7 @@ The comment above each `GazeOptions` field is its help text in `lerobot-train --
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
 
@@ -40,7 +43,7 @@ from gazereg.losses import across_processes, gaze_kl, gaze_loss
 from gazereg.patches import PatchGeometry
 
 from .errors import GazeUsageError, refusing
-from .gaze_targets import gaze_kind, gaze_valid_key
+from .gaze_targets import gaze_distribution, gaze_kind, gaze_valid_key
 
 DIVERGENCES = ("forward", "reverse", "js")
 
@@ -141,6 +144,19 @@ def check_gaze_features(cfg: Any, features: Mapping[str, Mapping[str, Any]]) -> 
         if math.prod(shape) != 1:
             raise GazeUsageError(f"gaze_key={key}", f"its flag column {flag} has shape {shape}, not one bool")
     cfg.gaze_camera_key()
+
+
+def check_gaze_layers(layers: Sequence[int] | None, valid: Sequence[int], model: str) -> None:
+    """Raise GazeUsageError naming gaze_layers when `layers` (None: the default, nothing to check) is empty or
+    holds an index not in `valid` (the layer indices the capture can regularize); `model` says what the model
+    has, e.g. "the model has 18 layers, 0..17"."""
+    if layers is None:
+        return
+    if not layers:
+        raise GazeUsageError("gaze_layers", f"names no layer: {model}")
+    bad = [int(i) for i in layers if i not in valid]
+    if bad:
+        raise GazeUsageError("gaze_layers", f"{bad} out of range: {model}")
 
 
 INACTIVE_FRAMES_LIMIT = 1000
@@ -253,3 +269,45 @@ def add_gaze_term(
         }
     )
     return total, loss_dict
+
+
+class GazePolicy(Protocol):
+    """What `finish_gaze_forward` reads from a gaze policy (smolvla_gaze, pi0_gaze, pi05_gaze)."""
+
+    config: Any
+    gaze_capture: Any  # a Capture whose image_tokens are those of the last captured forward
+    _gaze_frame: tuple[int, ...] | None
+    _gaze_activity: GazeActivity
+
+
+def finish_gaze_forward(
+    policy: GazePolicy,
+    cam: str,
+    cam_index: int,
+    column: Tensor,
+    flag: Tensor | None,
+    geometry: tuple[PatchGeometry, bool, tuple[int, int]],
+    loss: Tensor,
+    loss_dict: dict[str, Any],
+    reduction: str,
+) -> tuple[Tensor, dict[str, Any]]:
+    """The end of a gaze policy's training forward, after the base forward ran inside its capture: checks the
+    camera's token count against `geometry` (token geometry, flip, stored (height, width)), turns the gaze
+    `column` (B, *frame) and its `flag` (B,) bool or None into gaze distributions, counts the usable frames
+    (GazeActivity) and returns add_gaze_term's (loss, loss dict)."""
+    cfg = policy.config
+    geom, flip, src_hw = geometry
+    check_token_count(cam, policy.gaze_capture.image_tokens[cam_index], geom)
+    with refusing():
+        gaze, valid = gaze_distribution(
+            column,
+            geom,
+            flip,
+            cfg.gaze_sigma,
+            src_hw,
+            valid=flag,
+            key=cfg.gaze_key,
+            frame_shape=policy._gaze_frame,
+        )
+        policy._gaze_activity.update(valid)
+    return add_gaze_term(cfg, policy.gaze_capture, loss, loss_dict, gaze, valid, reduction)

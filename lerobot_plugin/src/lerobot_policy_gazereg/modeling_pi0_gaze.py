@@ -14,20 +14,22 @@ shuffle): one image token per patch, row-major.
 from __future__ import annotations
 
 import logging
-from typing import Any
+from types import ModuleType
+from typing import Any, ClassVar
 
+from lerobot.policies.pi0 import modeling_pi0
 from lerobot.policies.pi0.modeling_pi0 import PI0Policy
 from torch import Tensor
 
 from gazereg.patches import PatchGeometry
 
-from .capture_pi0 import PiCapture
+from .build_checks import check_before_build, gaze_frame_shape
+from .capture_pi0 import PiCapture, depth_text
 from .configuration_pi0_gaze import PI0GazeConfig
 from .errors import refusing
-from .gaze_common import GazeActivity, add_gaze_term, check_token_count, gaze_camera_index
-from .gaze_data import check_gaze_data
-from .gaze_targets import gaze_distribution, gaze_valid_flag
-from .modeling_smolvla_gaze import SmolVLAGazePolicy, gaze_frame_shape
+from .gaze_common import GazeActivity, finish_gaze_forward, gaze_camera_index
+from .gaze_targets import gaze_valid_flag
+from .modeling_smolvla_gaze import SmolVLAGazePolicy
 
 log = logging.getLogger(__name__)
 
@@ -43,11 +45,38 @@ def pi_geometry(src_hw: tuple[int, int], input_hw: tuple[int, int], patch_size: 
     )
 
 
+def pi_camera_geometry(cfg: Any, patch_size: int) -> tuple[PatchGeometry, tuple[int, int]]:
+    """(token geometry, stored (height, width)) of the regularized camera's frames for SigLIP patches of
+    `patch_size` px (pi_geometry at the config's `image_resolution`)."""
+    shape = cfg.image_features[cfg.gaze_camera_key()].shape  # (C, H, W)
+    src_hw = (int(shape[-2]), int(shape[-1]))
+    h_in, w_in = (int(x) for x in cfg.image_resolution)
+    return pi_geometry(src_hw, (h_in, w_in), patch_size), src_hw
+
+
 class PiGazeMixin:
     """The gaze term of `pi0_gaze` / `pi05_gaze`, mixed in before PI0Policy / PI05Policy."""
 
+    # lerobot's modeling module of the base policy: its gemma variants and PaliGemma config build the model
+    _lerobot_modeling: ClassVar[ModuleType] = modeling_pi0
+
     # the gaze column lookup (batch, else the data set's parquet by `index`) is smolvla_gaze's
     _gaze_column = SmolVLAGazePolicy._gaze_column
+
+    @classmethod
+    def lerobot_model_shape(cls, config: Any) -> tuple[int, int]:
+        """(layer count, SigLIP patch size in px) of the model lerobot builds for `config`, read without building
+        it: `get_gemma_config(paligemma_variant).depth` and its PaliGemma config's vision patch size."""
+        mod = cls._lerobot_modeling
+        depth = int(mod.get_gemma_config(config.paligemma_variant).depth)
+        return depth, int(mod.CONFIG_MAPPING["paligemma"]().vision_config.patch_size)
+
+    @classmethod
+    def _check_before_build(cls, config: Any, meta: Any) -> None:
+        """build_checks.check_before_build against `lerobot_model_shape`."""
+        depth, patch = cls.lerobot_model_shape(config)
+        layers = (range(depth), depth_text(depth))
+        check_before_build(config, meta, layers, lambda: pi_camera_geometry(config, patch)[0])
 
     def _init_gaze(self, kwargs: dict[str, Any]) -> None:
         self.gaze_capture = PiCapture(self.model, self.config.gaze_layers)
@@ -60,12 +89,8 @@ class PiGazeMixin:
 
     def _geometry(self) -> tuple[PatchGeometry, tuple[int, int]]:
         if self._gaze_geometry is None:
-            cfg = self.config
-            shape = cfg.image_features[cfg.gaze_camera_key()].shape  # (C, H, W)
-            src_hw = (int(shape[-2]), int(shape[-1]))
             patch = self.model.paligemma_with_expert.paligemma.config.vision_config.patch_size
-            h_in, w_in = (int(x) for x in cfg.image_resolution)
-            self._gaze_geometry = (pi_geometry(src_hw, (h_in, w_in), patch), src_hw)
+            self._gaze_geometry = pi_camera_geometry(self.config, patch)
         return self._gaze_geometry
 
     def forward(self, batch: dict[str, Tensor], reduction: str = "mean") -> tuple[Tensor, dict[str, Any]]:
@@ -79,20 +104,9 @@ class PiGazeMixin:
         with self.gaze_capture.capture(cam_index, cfg.chunk_size):
             loss, loss_dict = super().forward(batch, reduction=reduction)
         geom, src_hw = self._geometry()
-        check_token_count(cam, self.gaze_capture.image_tokens[cam_index], geom)
-        with refusing():
-            gaze, valid = gaze_distribution(
-                column,
-                geom,
-                False,
-                cfg.gaze_sigma,
-                src_hw,
-                valid=flag,
-                key=cfg.gaze_key,
-                frame_shape=self._gaze_frame,
-            )
-            self._gaze_activity.update(valid)
-        return add_gaze_term(cfg, self.gaze_capture, loss, loss_dict, gaze, valid, reduction)
+        return finish_gaze_forward(
+            self, cam, cam_index, column, flag, (geom, False, src_hw), loss, loss_dict, reduction
+        )
 
 
 class PI0GazePolicy(PiGazeMixin, PI0Policy):
@@ -100,7 +114,6 @@ class PI0GazePolicy(PiGazeMixin, PI0Policy):
     name = "pi0_gaze"
 
     def __init__(self, config: PI0GazeConfig, **kwargs: Any):
-        with refusing():
-            check_gaze_data(config, kwargs.get("dataset_meta"))  # before PaliGemma (and its weights) is built
+        self._check_before_build(config, kwargs.get("dataset_meta"))  # before PaliGemma (and its weights)
         super().__init__(config, **kwargs)
         self._init_gaze(kwargs)

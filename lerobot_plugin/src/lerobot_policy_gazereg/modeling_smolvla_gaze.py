@@ -14,9 +14,10 @@ Where the gaze comes from, per training batch:
    once from the data set's parquet files (the policy receives the data set metadata) and looked up by the
    batch's `index`.
 
-Before the model is built (so before any weights load) the data set's gaze column is checked
-(gaze_common.check_gaze_features in the config's feature hook, gaze_data.check_gaze_data here: a column without
-a single usable frame is refused), and while training `GazeActivity` stops a run whose gaze term is never
+Before the model is built (so before any weights load) `gaze_layers` and the data set's gaze column are checked
+(gaze_common.check_gaze_features in the config's feature hook; build_checks.check_before_build here: layers the
+action expert does not attend at, a column without a single usable frame, a token-distribution column whose
+length is not the camera's token count are refused), and while training `GazeActivity` stops a run whose gaze term is never
 active; each refusal is one line naming the column (errors.refusing).
 """
 
@@ -29,13 +30,16 @@ from typing import Any
 import torch
 from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
 from torch import Tensor
+from transformers import AutoConfig
 
-from .capture import SmolVLACapture
+from gazereg.patches import PatchGeometry
+
+from .build_checks import check_before_build, gaze_frame_shape
+from .capture import SmolVLACapture, expert_layers, expert_layers_text
 from .configuration_smolvla_gaze import SmolVLAGazeConfig
 from .errors import refusing
-from .gaze_common import GazeActivity, add_gaze_term, check_token_count, gaze_camera_index
-from .gaze_data import check_gaze_data
-from .gaze_targets import gaze_distribution, gaze_valid_flag, smolvla_geometry
+from .gaze_common import GazeActivity, finish_gaze_forward, gaze_camera_index
+from .gaze_targets import gaze_valid_flag, smolvla_geometry
 
 log = logging.getLogger(__name__)
 
@@ -58,10 +62,24 @@ def _load_gaze_column(root: Path, key: str) -> tuple[Tensor, Tensor] | None:
     return torch.cat(idx).long(), torch.cat(vals)
 
 
-def gaze_frame_shape(config: Any, meta: Any) -> tuple[int, ...] | None:
-    """The data set's shape per frame of the gaze column (LeRobotDatasetMetadata.features), or None without one."""
-    feature = getattr(meta, "features", {}).get(config.gaze_key) if meta is not None else None
-    return tuple(int(d) for d in feature["shape"]) if feature else None
+def smolvla_camera_geometry(cfg: Any, vlm_config: Any) -> tuple[PatchGeometry, bool, tuple[int, int]]:
+    """(token geometry, flip, stored (height, width)) of the regularized camera's frames, from the VLM's config
+    (its vision_config.patch_size and the connector's scale_factor); see gaze_targets.smolvla_geometry."""
+    shape = cfg.image_features[cfg.gaze_camera_key()].shape  # (C, H, W)
+    src_hw = (int(shape[-2]), int(shape[-1]))
+    patch = vlm_config.vision_config.patch_size
+    geom, flip = smolvla_geometry(src_hw, cfg.resize_imgs_with_padding, patch, vlm_config.scale_factor)
+    return geom, flip, src_hw
+
+
+def smolvla_gaze_layers(cfg: Any, vlm_config: Any) -> tuple[list[int], str]:
+    """(the VLM layer indices where the action expert attends, a sentence saying so) of the model SmolVLA builds
+    from `cfg` and the VLM's config: its first num_vlm_layers text layers (all when <= 0), num_expert_layers
+    expert layers (as many when <= 0)."""
+    n_text = int(vlm_config.text_config.num_hidden_layers)
+    n = min(cfg.num_vlm_layers, n_text) if cfg.num_vlm_layers > 0 else n_text
+    layers = expert_layers(n, cfg.num_expert_layers if cfg.num_expert_layers > 0 else n)
+    return layers, expert_layers_text(n, layers)
 
 
 class SmolVLAGazePolicy(SmolVLAPolicy):
@@ -70,8 +88,15 @@ class SmolVLAGazePolicy(SmolVLAPolicy):
 
     def __init__(self, config: SmolVLAGazeConfig, **kwargs: Any):
         meta = kwargs.get("dataset_meta")
-        with refusing():
-            check_gaze_data(config, meta)  # before the VLM (and its weights) is built
+        vlm_config = AutoConfig.from_pretrained(
+            config.vlm_model_name
+        )  # the config SmolVLA builds the VLM from
+        check_before_build(  # before the VLM (and its weights) is built
+            config,
+            meta,
+            smolvla_gaze_layers(config, vlm_config),
+            lambda: smolvla_camera_geometry(config, vlm_config)[0],
+        )
         super().__init__(config, **kwargs)
         self.gaze_capture = SmolVLACapture(self.model, config.gaze_layers)
         self._gaze_root = getattr(meta, "root", None)
@@ -81,16 +106,9 @@ class SmolVLAGazePolicy(SmolVLAPolicy):
         self._gaze_activity = GazeActivity(config.gaze_key)
 
     # ----- gaze targets --------------------------------------------------------------------------------------
-    def _geometry(self):
+    def _geometry(self) -> tuple[PatchGeometry, bool, tuple[int, int]]:
         if self._gaze_geometry is None:
-            cfg = self.config
-            cam = cfg.gaze_camera_key()
-            shape = cfg.image_features[cam].shape  # (C, H, W)
-            src_hw = (int(shape[-2]), int(shape[-1]))
-            vcfg = self.model.vlm_with_expert.config
-            patch = vcfg.vision_config.patch_size
-            geom, flip = smolvla_geometry(src_hw, cfg.resize_imgs_with_padding, patch, vcfg.scale_factor)
-            self._gaze_geometry = (geom, flip, src_hw)
+            self._gaze_geometry = smolvla_camera_geometry(self.config, self.model.vlm_with_expert.config)
         return self._gaze_geometry
 
     def _gaze_column(self, batch: dict[str, Any]) -> Tensor:
@@ -125,21 +143,10 @@ class SmolVLAGazePolicy(SmolVLAPolicy):
             return super().forward(batch, noise=noise, time=time, reduction=reduction)
         cam, cam_index = gaze_camera_index(cfg, batch)
         column = self._gaze_column(batch)
-        with self.gaze_capture.capture(cam_index):
-            loss, loss_dict = super().forward(batch, noise=noise, time=time, reduction=reduction)
-        geom, flip, src_hw = self._geometry()
-        check_token_count(cam, self.gaze_capture.image_tokens[cam_index], geom)
         with refusing():
             flag = gaze_valid_flag(batch, cfg.gaze_key)
-            gaze, valid = gaze_distribution(
-                column,
-                geom,
-                flip,
-                cfg.gaze_sigma,
-                src_hw,
-                valid=flag,
-                key=cfg.gaze_key,
-                frame_shape=self._gaze_frame,
-            )
-            self._gaze_activity.update(valid)
-        return add_gaze_term(cfg, self.gaze_capture, loss, loss_dict, gaze, valid, reduction)
+        with self.gaze_capture.capture(cam_index):
+            loss, loss_dict = super().forward(batch, noise=noise, time=time, reduction=reduction)
+        return finish_gaze_forward(
+            self, cam, cam_index, column, flag, self._geometry(), loss, loss_dict, reduction
+        )
