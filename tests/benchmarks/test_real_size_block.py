@@ -3,13 +3,9 @@ committed JSON (so its numbers come from the file, not typed), and the markdown 
 
 from __future__ import annotations
 
-import subprocess
-import sys
-from pathlib import Path
-
 import pytest
+from docs_blocks import ROOT, block, markdown
 
-ROOT = Path(__file__).resolve().parents[2]
 BLOCKS = {  # the docs/speed.md block -> the JSON it is rendered from
     "real-size-h200": "real_size_h200.json",
     "real-size-cpu-smolvla": "real_size_cpu_smolvla.json",
@@ -17,34 +13,16 @@ BLOCKS = {  # the docs/speed.md block -> the JSON it is rendered from
 }
 
 
-def _block(page: Path, marker: str) -> str:
-    text = page.read_text()
-    return text.split(f"<!-- {marker}:start -->\n", 1)[1].split(f"<!-- {marker}:end -->", 1)[0]
-
-
 @pytest.mark.parametrize("marker", sorted(BLOCKS))
 def test_the_speed_page_block_is_rendered_from_the_committed_json(marker):
-    json_path = ROOT / "docs" / "benchmarks" / BLOCKS[marker]
-    out = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "bench_real_size.py"), "--markdown", str(json_path)],
-        capture_output=True,
-        text=True,
-        check=True,
-    ).stdout
-    assert _block(ROOT / "docs" / "speed.md", marker) == out
+    done = markdown("bench_real_size.py", ROOT / "docs" / "benchmarks" / BLOCKS[marker])
+    assert done.returncode == 0, done.stderr
+    out = done.stdout
+    assert block(ROOT / "docs" / "speed.md", marker) == out
     assert "| smolvla |" in out or ("| pi0 |" in out and "| pi05 |" in out)
 
 
 def test_markdown_of_a_missing_file_is_one_line_and_exit_2(tmp_path):
-    r = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "benchmarks" / "bench_real_size.py"),
-            "--markdown",
-            str(tmp_path / "x.json"),
-        ],
-        capture_output=True,
-        text=True,
-    )
+    r = markdown("bench_real_size.py", tmp_path / "x.json")
     assert r.returncode == 2
     assert r.stderr.strip().count("\n") == 0 and "x.json" in r.stderr
