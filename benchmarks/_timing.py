@@ -3,11 +3,14 @@ scripts run from this folder)."""
 
 from __future__ import annotations
 
+import json
 import os
 import platform
 import statistics
+import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -63,3 +66,13 @@ def machine_info(precision: str | None = None, **extra: Any) -> dict[str, Any]:
         "load_avg_before": [round(x, 2) for x in os.getloadavg()],
         **extra,
     }
+
+
+def print_markdown(path: Path, render: Callable[[dict[str, Any], str], str], prog: str) -> int:
+    """`--markdown JSON` of a benchmark script: print `render(the JSON, its file name)` and return 0, or one line
+    on stderr naming the missing file and return 2."""
+    if not path.is_file():
+        print(f"{prog}: error: --markdown {path}: no such file", file=sys.stderr)
+        return 2
+    print(render(json.loads(path.read_text()), path.name))
+    return 0

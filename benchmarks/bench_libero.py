@@ -24,7 +24,7 @@ import sys
 import time
 from pathlib import Path
 
-from _timing import machine_info
+from _timing import machine_info, print_markdown
 
 
 def run(
@@ -165,11 +165,7 @@ def main() -> int:
     )
     args = ap.parse_args()
     if args.markdown is not None:
-        if not args.markdown.is_file():
-            print(f"bench_libero.py: error: --markdown {args.markdown}: no such file", file=sys.stderr)
-            return 2
-        print(expert_markdown(json.loads(args.markdown.read_text()), args.markdown.name))
-        return 0
+        return print_markdown(args.markdown, expert_markdown, "bench_libero.py")
     if args.out is not None and not args.out.parent.is_dir():
         ap.error(f"--out: the folder {args.out.parent} does not exist")
     from gazereg.envs.libero.setup import libero_available

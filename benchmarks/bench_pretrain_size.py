@@ -16,14 +16,13 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import sys
 import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import torch
-from _timing import machine_info
+from _timing import machine_info, print_markdown
 from bench_train import make_store
 
 from gazereg.data.dataset import EpisodeDataset, StepBatchSampler
@@ -98,11 +97,7 @@ def main() -> int:
     )
     args = ap.parse_args()
     if args.markdown is not None:
-        if not args.markdown.is_file():
-            print(f"bench_pretrain_size.py: error: --markdown {args.markdown}: no such file", file=sys.stderr)
-            return 2
-        print(markdown_table(json.loads(args.markdown.read_text()), args.markdown.name))
-        return 0
+        return print_markdown(args.markdown, markdown_table, "bench_pretrain_size.py")
     sizes = [parse_size(s) for s in args.sizes]
     models = {s: build(*s) for s in sizes}
     first = next(iter(models.values()))[0]
