@@ -62,6 +62,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from _timing import print_markdown
+
 CONFIGS = ("smolvla", "pi0", "pi05")
 GAZE_KEY = "gaze.point"
 STATE_DIM = 14
@@ -647,8 +649,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="measure nothing: print the markdown table of a JSON this script wrote (for docs)",
     )  # fmt: skip
     args = ap.parse_args(argv)
-    if args.markdown is not None and not args.markdown.is_file():
-        ap.error(f"--markdown {args.markdown}: no such file")
     names = [c.strip() for c in args.configs.split(",") if c.strip()]
     bad = [c for c in names if c not in CONFIGS]
     if bad or not names:
@@ -716,8 +716,7 @@ def measure(name: str, args: argparse.Namespace, workdir: Path, bf16: bool) -> d
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     if args.markdown is not None:
-        print(markdown_table(json.loads(args.markdown.read_text()), args.markdown.name))
-        return 0
+        return print_markdown(args.markdown, markdown_table, "bench_real_size.py")
     try:
         import lerobot  # noqa: F401
         import lerobot_policy_gazereg  # noqa: F401
