@@ -6,7 +6,7 @@ import pytest
 from gazereg import cli
 from gazereg.experiment.compare import compare_runs, main
 from gazereg.experiment.finished import STAGES, read_run
-from gazereg.report.compare import compare_markdown, compare_records
+from gazereg.report.compare import compare_markdown, compare_records, compare_tasks
 from gazereg.runtime.config import config_diff
 from gazereg.runtime.errors import UsageError
 
@@ -58,6 +58,37 @@ def test_compare_pairs_each_arm_by_seed_task_and_setup():
     assert g["distance"]["mean_diff"] == pytest.approx(-0.1)
     base = rows["baseline | clean"]
     assert base["a_only"] == base["b_only"] == 0 and base["mcnemar_p"] == 1.0 and base["distance"] is None
+
+
+def test_compare_breaks_each_arm_down_by_task_when_the_runs_share_several():
+    a = records("gaze@s0", [0] * 6, task="reach-v3") + records("gaze@s0", [1] * 6, task="push-v3")
+    b = records("gaze@s0", [1] * 6, task="reach-v3") + records("gaze@s0", [1] * 3 + [0] * 3, task="push-v3")
+    b += records("gaze@s0", [1] * 4, task="pick-place-v3")  # A never ran it: no row
+    tasks = compare_tasks(a, b)
+    assert list(tasks) == ["reach-v3", "push-v3"]
+    assert (
+        tasks["reach-v3"]["gaze | clean"]["b_only"] == 6 and tasks["reach-v3"]["gaze | clean"]["a_only"] == 0
+    )
+    assert tasks["push-v3"]["gaze | clean"]["a_only"] == 3 and tasks["push-v3"]["gaze | clean"]["b"]["n"] == 6
+    pooled = compare_records(a, b)["gaze | clean"]
+    assert (pooled["a_only"], pooled["b_only"]) == (3, 6)  # the two tasks' discordant pairs together
+    assert (
+        compare_tasks(records("gaze@s0", [1] * 3), records("gaze@s0", [0] * 3)) == {}
+    )  # one task: no breakdown
+
+
+def test_compare_markdown_has_a_per_task_table_only_for_several_tasks(tmp_path):
+    two = records("gaze@s0", [0, 1], task="reach-v3") + records("gaze@s0", [1, 1], task="push-v3")
+    a = write_run(tmp_path, "a", {"out": "a"}, two)
+    b = write_run(tmp_path, "b", {"out": "b"}, records("gaze@s0", [1, 1], task="reach-v3") + two[2:])
+    text = compare_markdown(compare_runs(a, b))
+    assert (
+        "Per task:" in text
+        and "| reach-v3 | gaze | clean | 1/2 = 0.50" in text
+        and "| push-v3 | gaze |" in text
+    )
+    one = write_run(tmp_path, "c", {"out": "c"}, records("gaze@s0", [0, 1]))
+    assert "Per task:" not in compare_markdown(compare_runs(one, one))
 
 
 def test_compare_without_shared_setups_names_both_sides():

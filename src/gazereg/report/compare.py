@@ -81,6 +81,22 @@ def success_curves(report: dict[str, Any] | None) -> dict[str, dict[str, list[An
     return {arm: {"steps": c["steps"], "rates": c["rates"]} for arm, c in arms.items()}
 
 
+def compare_tasks(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:
+    """{task: `compare_records` of that task's episodes} for every task both runs evaluated with a shared
+    episode, in the order of A's records; empty when they share at most one task (the pooled rows are then
+    the task's)."""
+    tasks = [t for t in dict.fromkeys(r["task"] for r in a) if any(r["task"] == t for r in b)]
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    for task in tasks:
+        try:
+            out[task] = compare_records(
+                [r for r in a if r["task"] == task], [r for r in b if r["task"] == task]
+            )
+        except ValueError:  # this task's episodes share no setup: nothing to pair
+            continue
+    return out if len(out) > 1 else {}
+
+
 def comparison(
     names: tuple[str, str],
     configs: tuple[dict[str, Any], dict[str, Any]],
@@ -88,13 +104,15 @@ def comparison(
     reports: tuple[dict[str, Any] | None, dict[str, Any] | None],
 ) -> dict[str, Any]:
     """Runs A and B compared (each given as its name, saved config, evaluation records and report or None):
-    their config differences, the per-arm, per-condition paired comparison of B against A, and each run's
+    their config differences, the per-arm, per-condition paired comparison of B against A (`rows`, every
+    task pooled; `tasks`, each task's own when they share several: `compare_tasks`), and each run's
     success-versus-steps curve."""
     return {
         "a": names[0],
         "b": names[1],
         "differences": config_diff(configs[0], configs[1], ignore=("out",)),
         "rows": compare_records(*records),
+        "tasks": compare_tasks(*records),
         "curves": {"a": success_curves(reports[0]), "b": success_curves(reports[1])},
     }
 
@@ -126,6 +144,22 @@ def compare_markdown(result: dict[str, Any], level: int = 2) -> str:
             f"| {arm} | {cond} | {_pct(row['a'])} | {_pct(row['b'])} | {row['pairs']} "
             f"| {row['a_only']} / {row['b_only']} | {rate_difference(row)} | {row['mcnemar_p']:.3g} | {dist} |"
         )
+    tasks = result.get("tasks", {})
+    if tasks:
+        lines += [
+            "",
+            "Per task:",
+            "",
+            "| task | arm | condition | A success [95% CI] | B success [95% CI] | only A / only B | McNemar p |",
+            "| --- | --- | --- | --- | --- | --- | --- |",
+        ]
+        for task, rows in tasks.items():
+            for name, row in rows.items():
+                arm, cond = name.split(" | ", 1)
+                lines.append(
+                    f"| {task} | {arm} | {cond} | {_pct(row['a'])} | {_pct(row['b'])} "
+                    f"| {row['a_only']} / {row['b_only']} | {row['mcnemar_p']:.3g} |"
+                )
     curves = result.get("curves", {})
     if any(curves.values()):
         lines += ["", "Clean success at each run's own checkpoints (its convergence episodes):", ""]
