@@ -6,6 +6,8 @@ About a minute on 2 cores (a toy pretraining, a 2-episode collection of a held-o
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 from dataclasses import replace
 from pathlib import Path
@@ -18,7 +20,7 @@ from gazereg.data.store import EpisodeStore
 from gazereg.envs.collect import collect
 from gazereg.envs.collect_config import CollectConfig
 from gazereg.experiment.config import ExperimentConfig
-from gazereg.experiment.pretrain import STAGES, store_fingerprint
+from gazereg.experiment.pretrain import STAGES, Pretraining, store_fingerprint
 from gazereg.experiment.pretrain_config import PRESETS, finetune_flags, held_out_instructions
 from gazereg.experiment.runner import Experiment
 from gazereg.policies import load_policy
@@ -31,12 +33,17 @@ from gazereg.training.setup import build
 
 pytest.importorskip("metaworld")
 
+PROGRESS_LOG = "stderr.txt"
+
 
 @pytest.fixture(scope="module")
 def pretrained(tmp_path_factory) -> Path:
-    """A finished toy pretraining folder."""
+    """A finished toy pretraining folder; what the run wrote on stderr is in the file beside it, PROGRESS_LOG."""
     out = tmp_path_factory.mktemp("pretrain") / "pt"
-    assert cli.main(["pretrain", "--preset", "toy", "--out", str(out)]) == 0
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert cli.main(["pretrain", "--preset", "toy", "--out", str(out)]) == 0
+    (out.parent / PROGRESS_LOG).write_text(err.getvalue())
     return out
 
 
@@ -87,6 +94,20 @@ def test_pretrain_runs_every_stage_and_writes_its_manifest(pretrained, capsys):
     assert cli.main(["pretrain", "--preset", "toy", "--out", str(pretrained)]) == 0
     assert (policy / "model.safetensors").stat().st_mtime_ns == before
     assert "fine-tune with: --train.init-from" in capsys.readouterr().out
+
+
+def test_every_stage_shows_its_progress_unless_told_not_to(pretrained):
+    err = (pretrained.parent / PROGRESS_LOG).read_text()
+    for label in (f"collect {pretrained / 'demos'}:", f"eval {pretrained / 'eval'}:"):
+        lines = [line for line in err.splitlines() if line.startswith(label)]
+        assert lines and "took" in lines[-1], label  # the stage's last line says how long it took
+    assert not PRESETS["toy"]().train.progress and "train train:" not in err  # the toy's --train.no-progress
+    quiet = Pretraining(replace(PRESETS["toy"](), out=pretrained, progress=False))
+    assert not quiet.collect_config().progress and not quiet.train_config().progress
+    toy = PRESETS["toy"]()
+    loud = Pretraining(replace(toy, out=pretrained, train=replace(toy.train, progress=True)))
+    assert loud.collect_config().progress and loud.train_config().progress
+    assert PRESETS["ml45"]().train.progress  # the real run shows its training too
 
 
 def test_pretrain_refuses_another_configuration_in_its_folder(pretrained, capsys):

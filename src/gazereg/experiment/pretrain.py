@@ -167,7 +167,7 @@ class Pretraining:
             image_size=c.image_size,
             max_steps=c.demo_max_steps,
             workers=c.collect_workers,
-            progress=False,
+            progress=c.progress,
         )
 
     def stage_demos(self, _: dict[str, Any]) -> dict[str, Any]:
@@ -178,8 +178,13 @@ class Pretraining:
         return {**collection_result("train", report, len(store), frames), "seeds": [PRETRAIN_DEMOS.start]}
 
     def train_config(self) -> Any:
-        t = self.cfg.train
-        return replace(t, run_dir=self.train_dir, data=replace(t.data, store=self.demos))
+        c, t = self.cfg, self.cfg.train
+        return replace(
+            t,
+            run_dir=self.train_dir,
+            data=replace(t.data, store=self.demos),
+            progress=t.progress and c.progress,
+        )
 
     def stage_train(self, _: dict[str, Any]) -> dict[str, Any]:
         """Train (resuming from the newest checkpoint), then copy the final weights to out/policy."""
@@ -217,7 +222,7 @@ class Pretraining:
 
     def stage_eval(self, _: dict[str, Any]) -> dict[str, Any]:
         """Multi-task success of out/policy on the evaluation setups: pooled and per task (Wilson 95%)."""
-        info = evaluate(self.eval_config(), progress=False)
+        info = evaluate(self.eval_config(), progress=self.cfg.progress)
         clean = info["summary"]["arms"][ARM]["clean"]
         return {
             "eval_info": str(self.eval_dir / "eval_info.json"),

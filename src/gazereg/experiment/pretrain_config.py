@@ -71,6 +71,9 @@ class PretrainConfig(Validated):
     eval_workers: int = 2
     eval_batch: int | None = None
     """environments a worker steps in lockstep (None: the simulator's default; gazereg.evaluation.config)"""
+    progress: bool = True
+    """a progress line on stderr for each stage's work: demonstrations collected, training steps (unless
+    `--train.no-progress`), evaluation episodes (`gazereg.runtime.progress`)"""
 
     def validate(self, prefix: str) -> None:
         require_entries(self.tasks, prefix + "tasks", noun="task", show=str)
@@ -111,6 +114,7 @@ EXECUTION_KEYS = (
     "collect_workers",
     "eval_workers",
     "eval_batch",
+    "progress",
     *(f"train.{k}" for k in TRAIN_EXECUTION_KEYS),
 )
 """keys a resumed pretraining may change: how it runs, not what it produces"""
@@ -190,7 +194,6 @@ def ml45_train() -> TrainConfig:
         keep_checkpoints=3,
         eval_every=1000,
         device="auto",
-        progress=False,
     )
 
 
