@@ -1,4 +1,6 @@
+import importlib.util
 import os
+from pathlib import Path
 
 import pytest
 import torch
@@ -35,3 +37,13 @@ def finished_experiment(tmp_path_factory):
     ]
     assert cli.main(["experiment", *args, "--eval.episodes", "3", "--out", str(out)]) == 0
     return out
+
+
+@pytest.fixture(scope="session")
+def script():
+    """scripts/update_results.py loaded as a module: the script that writes and checks the docs' blocks."""
+    path = Path(__file__).resolve().parents[1] / "scripts" / "update_results.py"
+    spec = importlib.util.spec_from_file_location("update_results", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

@@ -7,7 +7,6 @@ like an experiment's block. One toy pretraining for the module (about 10 s on on
 from __future__ import annotations
 
 import gzip
-import importlib.util
 import json
 import shutil
 from pathlib import Path
@@ -53,14 +52,6 @@ def archived(pretrained, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("records") / "pretrain-toy"
     assert cli.main(["archive", str(pretrained), "--out", str(out)]) == 0
     return out
-
-
-@pytest.fixture(scope="module")
-def script():
-    spec = importlib.util.spec_from_file_location("update_results", ROOT / "scripts" / "update_results.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def files(folder: Path) -> set[str]:

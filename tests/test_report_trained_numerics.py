@@ -3,7 +3,6 @@ the machine that builds the report: one key when every run trained on one machin
 machines" (no key, so update_results --check tests agreement) when they differ, and the report machine's key in
 the runs' precision, as before, for runs made before the record."""
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -138,14 +137,6 @@ def test_the_finished_run_reader_the_archive_and_the_pool_carry_the_records(tmp_
     b = outputs(tmp_path / "b", {RUNS[1]: None})
     merged = merge_outputs([source, source], [a, b], tmp_path / "pooled")
     assert merged.numerics == {RUNS[0]: on(INTEL), RUNS[1]: None}
-
-
-@pytest.fixture(scope="module")
-def script():
-    spec = importlib.util.spec_from_file_location("update_results", ROOT / "scripts" / "update_results.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def run_folder(tmp_path, name, machine):

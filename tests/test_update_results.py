@@ -5,7 +5,6 @@ a block exactly when their numerics keys are equal, by a stated test of agreemen
 refuses a block without its data line (issue 33). The repository's own pages: every marker on exactly one page,
 every local link resolves, the findings page's numbers are quoted from blocks."""
 
-import importlib.util
 import json
 import re
 import shutil
@@ -21,14 +20,6 @@ from gazereg.runtime.hardware import NumericsKey
 
 ROOT = Path(__file__).resolve().parents[1]
 GOLDEN = Path(__file__).parent / "report_golden"
-
-
-@pytest.fixture(scope="module")
-def script():
-    spec = importlib.util.spec_from_file_location("update_results", ROOT / "scripts" / "update_results.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 MAIN_JOB = "# Main job\n<!-- quick-results:start -->\nold quick\n<!-- quick-results:end -->\nmiddle\n"
