@@ -1,5 +1,6 @@
 """What the tests of the benchmarks' docs blocks share (imported as `docs_blocks`: pytest puts this folder on the
-path): a block's text on a docs page, and a benchmark script's `--markdown` mode."""
+path): a benchmark script's `--markdown` mode. A block's text on a docs page is read by the script that writes
+the blocks (`script.read_block`, the `script` fixture of tests/conftest.py)."""
 
 from __future__ import annotations
 
@@ -8,12 +9,6 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def block(page: Path, marker: str) -> str:
-    """The text between `marker`'s start and end lines on `page`."""
-    text = page.read_text()
-    return text.split(f"<!-- {marker}:start -->\n", 1)[1].split(f"<!-- {marker}:end -->", 1)[0]
 
 
 def markdown(script: str, json_path: Path) -> subprocess.CompletedProcess:

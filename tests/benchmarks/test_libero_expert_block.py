@@ -3,13 +3,13 @@ JSON (its numbers come from the measurement, not typed); the markdown mode needs
 
 from __future__ import annotations
 
-from docs_blocks import ROOT, block, markdown
+from docs_blocks import ROOT, markdown
 
 
-def test_the_expert_block_is_rendered_from_the_committed_json():
+def test_the_expert_block_is_rendered_from_the_committed_json(script):
     out = markdown("bench_libero.py", ROOT / "docs" / "benchmarks" / "libero_object_expert.json")
     assert out.returncode == 0, out.stderr
-    assert block(ROOT / "docs" / "libero.md", "libero-object-expert") == out.stdout
+    assert script.read_block(ROOT / "docs" / "libero.md", "libero-object-expert") == out.stdout
     assert out.stdout.count("| libero_object/") == 10
 
 

@@ -3,15 +3,15 @@ the committed JSON (its numbers come from the file, not typed), and it holds the
 
 from __future__ import annotations
 
-from docs_blocks import ROOT, block, markdown
+from docs_blocks import ROOT, markdown
 
 from gazereg.experiment.pretrain_config import ml45_policy
 
 
-def test_the_sizing_block_is_rendered_from_the_committed_json_and_measured_the_presets_size():
+def test_the_sizing_block_is_rendered_from_the_committed_json_and_measured_the_presets_size(script):
     out = markdown("bench_pretrain_size.py", ROOT / "docs" / "benchmarks" / "pretrain_size.json")
     assert out.returncode == 0, out.stderr
-    assert block(ROOT / "docs" / "pretraining.md", "pretrain-size") == out.stdout
+    assert script.read_block(ROOT / "docs" / "pretraining.md", "pretrain-size") == out.stdout
     p = ml45_policy()
     assert f"| {p.dim}x{p.depth} |" in out.stdout
 

@@ -4,7 +4,7 @@ committed JSON (so its numbers come from the file, not typed), and the markdown 
 from __future__ import annotations
 
 import pytest
-from docs_blocks import ROOT, block, markdown
+from docs_blocks import ROOT, markdown
 
 BLOCKS = {  # the docs/speed.md block -> the JSON it is rendered from
     "real-size-h200": "real_size_h200.json",
@@ -14,11 +14,11 @@ BLOCKS = {  # the docs/speed.md block -> the JSON it is rendered from
 
 
 @pytest.mark.parametrize("marker", sorted(BLOCKS))
-def test_the_speed_page_block_is_rendered_from_the_committed_json(marker):
+def test_the_speed_page_block_is_rendered_from_the_committed_json(script, marker):
     done = markdown("bench_real_size.py", ROOT / "docs" / "benchmarks" / BLOCKS[marker])
     assert done.returncode == 0, done.stderr
     out = done.stdout
-    assert block(ROOT / "docs" / "speed.md", marker) == out
+    assert script.read_block(ROOT / "docs" / "speed.md", marker) == out
     assert "| smolvla |" in out or ("| pi0 |" in out and "| pi05 |" in out)
 
 
