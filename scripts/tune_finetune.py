@@ -15,6 +15,11 @@ Protocol (fixed on 2026-11-27, before any fine-tuning result existed):
 - Step `recipe` (arm baseline only, no gaze anywhere): candidates `ft-default` (the preset: lr 5e-4, batch 32,
   3,000 steps), `ft-lr1e-4` (--train.optim.lr 1e-4), `ft-lr1e-3` (--train.optim.lr 1e-3), `ft-steps6k`
   (--train.steps 6000). Choice: the most validation successes, ties to the earlier candidate.
+- Step `recipe-scratch` (added on 2026-11-27, before any tuning result, after the preset recipe's pretrained run
+  did not beat scratch at 10 demonstrations): the same four recipe candidates for `ml45_scratch` (the same
+  policy from random weights: `sc-default`, `sc-lr1e-4`, `sc-lr1e-3`, `sc-steps6k`), so that "does pretraining
+  help" compares each initialisation at its own best recipe. Off the chain: the later steps take the `recipe`
+  step's choice, never this one's.
 - Step `weight` (arm gaze only, the visuomotor prior, on the chosen recipe's overrides): `w1e-3`, `w1e-2`,
   `w1e-1`, `w1`, `w10` (--train.gaze.weight; the gaze KL against the action loss's scale), action queries,
   default layers (-2 -1). Choice as above (ties to the smaller weight, the earlier).
@@ -66,7 +71,7 @@ DOCS = ROOT / "docs" / "tuning"
 RECORDS = ROOT / "docs" / "records" / "tune-ft"
 RUNS = "runs/tune-ft"
 BASE = [
-    "--preset", "ml45_finetune", "--eval.seed-start", "1300", "--eval.episodes", "20",
+    "--eval.seed-start", "1300", "--eval.episodes", "20",
     "--convergence-points", "1", "--heldout-per-task", "1",
 ]  # fmt: skip
 
@@ -75,25 +80,34 @@ BASE = [
 class Step:
     """One tuning step: its arm, and its candidates' own changes (on the earlier steps' chosen overrides);
     `default`: what the previous step's chosen run has of the setting tuned here, that run then being this
-    step's first candidate (not rerun); None: no run is carried over."""
+    step's first candidate (not rerun); None: no run is carried over. `preset`: the experiment preset its
+    commands start from; `chained` False: a step beside the chain (its candidates' changes on the preset
+    alone, its choice passed on to no later step)."""
 
     name: str
     arm: str
     candidates: tuple[Candidate, ...]
     default: str | None = None
+    preset: str = "ml45_finetune"
+    chained: bool = True
 
 
 def _c(name: str, change: str, *overrides: str) -> Candidate:
     return Candidate(name, change, overrides)
 
 
+def _recipe(prefix: str) -> tuple[Candidate, ...]:
+    return (
+        _c(f"{prefix}-default", "the preset: lr 5e-4, batch 32, 3,000 steps"),
+        _c(f"{prefix}-lr1e-4", "learning rate 1e-4", "--train.optim.lr", "1e-4"),
+        _c(f"{prefix}-lr1e-3", "learning rate 1e-3", "--train.optim.lr", "1e-3"),
+        _c(f"{prefix}-steps6k", "6,000 steps", "--train.steps", "6000"),
+    )
+
+
 STEPS = (
-    Step("recipe", "baseline", (
-        _c("ft-default", "the preset: lr 5e-4, batch 32, 3,000 steps"),
-        _c("ft-lr1e-4", "learning rate 1e-4", "--train.optim.lr", "1e-4"),
-        _c("ft-lr1e-3", "learning rate 1e-3", "--train.optim.lr", "1e-3"),
-        _c("ft-steps6k", "6,000 steps", "--train.steps", "6000"),
-    )),
+    Step("recipe", "baseline", _recipe("ft")),
+    Step("recipe-scratch", "baseline", _recipe("sc"), preset="ml45_scratch", chained=False),
     Step("weight", "gaze", tuple(
         _c(f"w{w}", f"gaze weight {w}", "--train.gaze.weight", w) for w in ("1e-3", "1e-2", "1e-1", "1", "10")
     )),
@@ -125,7 +139,7 @@ class Entry:
     def command(self) -> list[str]:
         if self.overrides is None:
             raise ValueError(f"{self.candidate.name}: an earlier step is unfinished")
-        base = [*BASE, "--arms", self.step.arm]
+        base = ["--preset", self.step.preset, *BASE, "--arms", self.step.arm]
         return experiment_command(base, self.overrides, f"{RUNS}/{self.candidate.name}")
 
     @property
@@ -160,9 +174,17 @@ def plan() -> list[tuple[Step, list[Entry], Entry | None]]:
     chosen: Entry | None = None
     for step in STEPS:
         entries = []
+        if not step.chained:
+            entries = [Entry(step, c, c.overrides, None) for c in step.candidates]
+            entries = [Entry(step, e.candidate, e.overrides, read_archive(e)) for e in entries]
+            done = all(e.run is not None for e in entries)
+            best = choose({e.candidate.name: e.successes for e in entries}) if done else None
+            out.append((step, entries, next((e for e in entries if e.candidate.name == best), None)))
+            continue
         if step.default is not None and chosen is None:
             placeholder = Candidate(
-                f"(the {out[-1][0].name} step's choice)", f"{step.default} (its run, not rerun)"
+                f"(the {[s for s, _, _ in out if s.chained][-1].name} step's choice)",
+                f"{step.default} (its run, not rerun)",
             )
             entries.append(Entry(step, placeholder, None, None, carried=True))
         elif step.default is not None and chosen is not None:
@@ -195,7 +217,11 @@ def runnable(step_name: str | None, only: list[str] | None) -> list[Entry]:
             continue
         if wanted[0].overrides is None:
             missing = [
-                e.candidate.name for _, es, _ in steps[:i] for e in es if e.run is None and not e.carried
+                e.candidate.name
+                for s, es, _ in steps[:i]
+                if s.chained
+                for e in es
+                if e.run is None and not e.carried
             ]
             raise UsageError(
                 f"step {step.name} runs once the steps before it have finished; not run yet: {', '.join(missing)}"
@@ -276,7 +302,8 @@ def table() -> str:
         "2026-11-27 before any result); each row is one candidate's `gazereg experiment` run on Meta-World",
         "setups 1300..1319 of ML45's held-out tasks, recounted from its archive in docs/records/tune-ft/ (its",
         "command in docs/tuning/finetune/<candidate>.json). Gaze scale: the gaze weight times the final",
-        "training gaze KL, and its ratio to the final training action loss.",
+        "training gaze KL, and its ratio to the final training action loss. The recipe-scratch rows train the same",
+        "policy from random weights (`ml45_scratch`); every other row fine-tunes the generalist.",
         "",
     ]
     header = ("step", "candidate", "change", "validation success", "per task", "gaze scale", "action loss")

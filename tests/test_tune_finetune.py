@@ -101,11 +101,37 @@ def test_the_commands_of_each_step(tune):
     both = entry(tune, "q-both").command
     assert both[len(base) + 2 : -2] == ["--train.optim.lr", "1e-3", "--train.gaze.weight", "1e-2",
                                         "--train.gaze.queries", "both"]  # fmt: skip
-    assert entry(tune, "w1e-2").candidate.name in [e.candidate.name for e in tune.plan()[2][1]]  # carried
+    assert entry(tune, "w1e-2").candidate.name in [e.candidate.name for e in tune.plan()[3][1]]  # carried
     fake_archive(tune, "q-language", 50)
     fake_archive(tune, "q-both", 51)
     gaze = parse(PRESETS, entry(tune, "l-middle").command[2:], prog="test").train.gaze
     assert (gaze.weight, gaze.queries, gaze.layers) == (1e-2, "both", (1, 2))
+
+
+def test_the_scratch_recipe_step_stands_beside_the_chain(tune, capsys):
+    """The same four recipes from random weights (ml45_scratch), runnable at any time, its choice passed on to no
+    later step: the gaze steps take the pretrained recipe step's."""
+    scratch = entry(tune, "sc-lr1e-3").command
+    assert scratch[:4] == ["gazereg", "experiment", "--preset", "ml45_scratch"]
+    assert scratch[-4:] == ["--train.optim.lr", "1e-3", "--out", "runs/tune-ft/sc-lr1e-3"]
+    cfg = parse(PRESETS, scratch[2:], prog="test")
+    assert (cfg.train.init_from, cfg.train.optim.lr, cfg.eval.seed_start, cfg.arms) == (
+        None,
+        1e-3,
+        1300,
+        ("baseline",),
+    )
+    assert cfg.train.policy == parse(PRESETS, entry(tune, "ft-lr1e-3").command[2:], prog="test").train.policy
+    assert [e.candidate.name for e in tune.runnable("recipe-scratch", None)] == [
+        "sc-default", "sc-lr1e-4", "sc-lr1e-3", "sc-steps6k"
+    ]  # fmt: skip
+    for name, k in (("ft-default", 30), ("ft-lr1e-4", 31), ("ft-lr1e-3", 20), ("ft-steps6k", 20)):
+        fake_archive(tune, name, k)
+    for name, k in (("sc-default", 30), ("sc-lr1e-4", 20), ("sc-lr1e-3", 40), ("sc-steps6k", 20)):
+        fake_archive(tune, name, k)
+    assert [c and c.candidate.name for _, _, c in tune.plan()][:2] == ["ft-lr1e-4", "sc-lr1e-3"]
+    assert entry(tune, "w1").overrides == ("--train.optim.lr", "1e-4", "--train.gaze.weight", "1")
+    assert "- recipe-scratch: **sc-lr1e-3**, learning rate 1e-3" in tune.table()
 
 
 def test_a_step_waits_for_the_previous_one(tune, capsys):
@@ -131,8 +157,8 @@ def test_the_choice_is_the_most_successes_ties_to_the_earlier(tune):
     fake_archive(tune, "q-both", 50)  # ties the carried action run: it stays
     for name, k in (("l-early", 50), ("l-middle", 51), ("l-last", 51)):
         fake_archive(tune, name, k)
-    chosen = [c.candidate.name for _, _, c in tune.plan()]
-    assert chosen == ["ft-default", "w1e-2", "w1e-2", "l-middle"]
+    chosen = [c and c.candidate.name for _, _, c in tune.plan()]
+    assert chosen == ["ft-default", None, "w1e-2", "w1e-2", "l-middle"]  # recipe-scratch not run
     assert entry(tune, "l-middle").overrides == (
         "--train.gaze.weight",
         "1e-2",

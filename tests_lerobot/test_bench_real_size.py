@@ -19,6 +19,9 @@ SCRIPT = ROOT / "benchmarks" / "bench_real_size.py"
 
 
 def _bench_module():
+    # as `python benchmarks/bench_real_size.py` would: its own folder on the path, for the shared _timing module
+    if str(SCRIPT.parent) not in sys.path:
+        sys.path.insert(0, str(SCRIPT.parent))
     spec = importlib.util.spec_from_file_location("bench_real_size", SCRIPT)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
