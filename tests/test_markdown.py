@@ -169,3 +169,18 @@ def test_convergence_needs_two_checkpoints_and_names_thresholds_never_reached(re
     for c in report["convergence"]["arms"].values():
         c["steps"], c["rates"] = c["steps"][-1:], c["rates"][-1:]
     assert "## Convergence" not in markdown(report)  # one checkpoint: no curve to read
+
+
+def test_the_header_states_the_gaze_term_only_where_an_arm_trains_with_it(report):
+    from gazereg.experiment.config import ExperimentConfig
+    from gazereg.experiment.records import report_spec
+
+    spec = report_spec(ExperimentConfig(arms=("baseline", "gaze", "uniform")), "quick")
+    assert (spec.gaze_arms, spec.gaze_queries) == (("gaze", "uniform"), "action")
+    assert report_spec(ExperimentConfig(arms=("baseline",)), "quick").gaze_arms == ()
+
+    report["train"].update(gaze_arms=[], gaze_queries="action")
+    assert "; no arm has a gaze term." in markdown(report)
+    assert "on layers" not in markdown(report)
+    report["train"].update(gaze_arms=["gaze", "uniform"], gaze_queries="language")
+    assert "; gaze weight 0.1 on layers [-2, -1], language queries (arms gaze, uniform)." in markdown(report)

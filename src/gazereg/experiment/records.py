@@ -11,6 +11,7 @@ from typing import Any
 from gazereg.experiment.config import ExperimentConfig
 from gazereg.report.build import ReportSpec
 from gazereg.runtime.config import to_dict
+from gazereg.training.arms import arm
 
 
 def with_added_keys(saved: dict[str, Any], default: dict[str, Any], new: dict[str, Any]) -> dict[str, Any]:
@@ -40,6 +41,8 @@ def report_spec(cfg: ExperimentConfig, preset: str) -> ReportSpec:
         batch_size=cfg.train.batch_size,
         gaze_weight=cfg.train.gaze.weight,
         gaze_layers=tuple(cfg.train.gaze.layers),
+        gaze_queries=cfg.train.gaze.queries,
+        gaze_arms=tuple(a for a in cfg.arms if arm(a).prior(cfg, None) is not None),
         eval_episodes=cfg.eval.episodes,
         eval_conditions=tuple(cfg.eval.conditions),
         eval_seed_start=cfg.eval.seed_start,

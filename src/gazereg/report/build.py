@@ -70,6 +70,11 @@ class ReportSpec:
     """the resolved configuration, stored in report.json as it is"""
     eval_robustness_episodes: int | None = None
     """setups per task under each condition but clean (the first of the clean ones); None: eval_episodes"""
+    gaze_queries: str = "action"
+    """whose attention the gaze term supervises (`GazeConfig.queries`)"""
+    gaze_arms: tuple[str, ...] | None = None
+    """the arms that train with a gaze term (a prior); None: not stated (the report then names the term's
+    settings whatever the arms)"""
 
 
 @dataclass(frozen=True)
@@ -198,6 +203,8 @@ def _header(spec: ReportSpec, outputs: StageOutputs) -> dict[str, Any]:
             "seeds": list(spec.train_seeds),
             "gaze_weight": spec.gaze_weight,
             "gaze_layers": list(spec.gaze_layers),
+            "gaze_queries": spec.gaze_queries,
+            **({} if spec.gaze_arms is None else {"gaze_arms": list(spec.gaze_arms)}),
             "arms": list(spec.arms),
         },
         "eval": {

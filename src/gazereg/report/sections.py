@@ -98,9 +98,18 @@ def header_lines(report: dict[str, Any]) -> list[str]:
         "",
         f"Tasks: {', '.join(report['tasks'])}. Demonstrations: {demos_text(report['demos'])}; evaluation on "
         f"{eval_text(ev)}, identical for every arm. Training: "
-        f"{tr['steps']} steps, batch {tr['batch_size']}, seeds {tr['seeds']}; "
-        f"gaze weight {tr['gaze_weight']} on layers {tr['gaze_layers']}.",
+        f"{tr['steps']} steps, batch {tr['batch_size']}, seeds {tr['seeds']}; {gaze_term_text(tr)}.",
     ]
+
+
+def gaze_term_text(train: dict[str, Any]) -> str:
+    """The gaze term's settings as report.json's "train" states them, or that no arm trains with one."""
+    arms = train.get("gaze_arms")
+    if arms == []:
+        return "no arm has a gaze term"
+    queries = f", {train['gaze_queries']} queries" if "gaze_queries" in train else ""
+    on = f" (arms {', '.join(arms)})" if arms else ""
+    return f"gaze weight {train['gaze_weight']} on layers {train['gaze_layers']}{queries}{on}"
 
 
 def glc_lines(report: dict[str, Any]) -> list[str]:
