@@ -155,3 +155,14 @@ def test_compare_reads_committed_archives(tmp_path, capsys):
     assert cli.main(["compare", str(ARCHIVE_B), str(ARCHIVE_C)]) == 2
     err = capsys.readouterr().err
     assert "share no evaluated episode" in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_per_task_rows_carry_each_tasks_instruction_when_a_report_states_it(tmp_path):
+    two = records("gaze@s0", [0, 1], task="reach-v3") + records("gaze@s0", [1, 1], task="push-v3")
+    a = write_run(tmp_path, "a", {"out": "a"}, two)
+    b = write_run(tmp_path, "b", {"out": "b"}, two)
+    said = {"reach-v3": "Reach the goal.", "push-v3": "Push the puck to the goal."}
+    (b / "report.json").write_text(json.dumps({"demos": {"instructions": said}}))
+    text = compare_markdown(compare_runs(a, b))
+    assert "| reach-v3: Reach the goal. | gaze | clean |" in text
+    assert "| push-v3: Push the puck to the goal. | gaze | clean |" in text

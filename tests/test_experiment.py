@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from gazereg import cli
+from gazereg.envs.metaworld.instructions import instruction_for
 from gazereg.experiment import STAGES, main
 from gazereg.runtime.hardware import NumericsKey
 
@@ -31,6 +32,10 @@ def test_smoke_experiment_end_to_end_and_resume(tmp_path, capsys):
         assert (out / fig).stat().st_size > 1000
     assert report["videos"] and all((out / v).exists() for v in report["videos"])
     assert (out / "report.md").read_text().startswith("# gazereg experiment")
+    said = instruction_for("reach-v3")
+    assert report["demos"]["instructions"] == {"reach-v3": said}  # the store's, in the task table
+    assert f"| reach-v3 | {said} |" in (out / "report.md").read_text()
+    assert set(report["train"]["gaze_arms"]) == arms - {"baseline"}
     # the precision every run trained in, as its trainer resolved "auto", and the machine's numerics key (#33)
     precisions = {json.loads(p.read_text())["mixed_precision"] for p in (out / "train").glob("*/config.json")}
     assert precisions == {report["machine"]["precision"]} and report["machine"]["precision"] in ("no", "bf16")

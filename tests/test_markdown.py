@@ -10,7 +10,7 @@ import pytest
 
 from gazereg.report import headline_lines, markdown, results_block
 from gazereg.report.blockdata import BlockData
-from gazereg.report.markdown import BLOCK_ALIGNMENT_KEYS
+from gazereg.report.markdown import BLOCK_ALIGNMENT_KEYS, per_task_lines
 
 GOLDEN = Path(__file__).parent / "report_golden"
 
@@ -184,3 +184,21 @@ def test_the_header_states_the_gaze_term_only_where_an_arm_trains_with_it(report
     assert "on layers" not in markdown(report)
     report["train"].update(gaze_arms=["gaze", "uniform"], gaze_queries="language")
     assert "; gaze weight 0.1 on layers [-2, -1], language queries (arms gaze, uniform)." in markdown(report)
+
+
+def test_the_per_task_table_carries_each_tasks_instruction(report):
+    from gazereg.experiment.demos import task_instructions
+
+    class Store:  # an episode store as task_instructions reads one
+        def indices(self):
+            return [0, 1, 2]
+
+        def meta(self, i):
+            return [{"task": "reach-v3", "instruction": "Reach the goal."}, {"task": "reach-v3"}][min(i, 1)]
+
+    said = task_instructions(Store())
+    assert said == {"reach-v3": "Reach the goal."}  # the first episode's
+    report.setdefault("demos", {})["instructions"] = said
+    lines = per_task_lines(report)
+    assert lines[2].startswith("| task | instruction |")
+    assert any(line.startswith("| reach-v3 | Reach the goal. |") for line in lines)

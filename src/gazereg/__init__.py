@@ -19,7 +19,6 @@ _EXPORTS = {
     "aggregate": "gazereg.aggregation",
     "PatchGeometry": "gazereg.patches",
     "patch_distribution": "gazereg.patches",
-    "GazeLossConfig": "gazereg.losses",
     "WeightSchedule": "gazereg.losses",
     "gaze_kl": "gazereg.losses",
     "gaze_loss": "gazereg.losses",

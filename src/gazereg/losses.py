@@ -156,19 +156,6 @@ class WeightSchedule:
         return w
 
 
-@dataclass(frozen=True)
-class GazeLossConfig:
-    """Everything about the gaze term a training config needs."""
-
-    enabled: bool = True
-    divergence: Divergence = "forward"
-    schedule: WeightSchedule = WeightSchedule()
-    eps: float = 1e-8
-
-    def __post_init__(self) -> None:
-        check_eps(self.eps)
-
-
 def across_processes(kl: Tensor, valid: Tensor) -> Tensor:
     """`kl` () (the mean over this process's valid frames; `valid` (B,) bool) rescaled to this process's share of
     the mean over every process's valid frames: kl * n_local * world / n_global, so that averaging it over the

@@ -13,6 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from gazereg.data.store import EpisodeStore
 from gazereg.envs.collect import CollectReport
 from gazereg.envs.collect_config import CollectConfig
 from gazereg.experiment.arms import trains_glc
@@ -60,6 +61,16 @@ def demo_collections(cfg: ExperimentConfig, out: Path) -> dict[str, CollectConfi
             out=stores["glc"], episodes=cfg.glc_demos_per_task, seed_base=start + GLC_OFFSET, **common
         )
     return sets
+
+
+def task_instructions(store: EpisodeStore) -> dict[str, str]:
+    """{task: its instruction} of the store's episodes, sorted by task (the first episode's, when a task's
+    episodes differ)."""
+    out: dict[str, str] = {}
+    for i in store.indices():
+        meta = store.meta(i)
+        out.setdefault(str(meta["task"]), str(meta.get("instruction", "")))
+    return dict(sorted(out.items()))
 
 
 def collection_result(name: str, report: CollectReport, episodes: int, frames: int) -> dict[str, Any]:

@@ -55,7 +55,7 @@ from gazereg.evaluation.config import EvalConfig
 from gazereg.evaluation.rollout import evaluate
 from gazereg.experiment.arms import PriorSpec, arm_prior, gaze_prior, gaze_target, trains_glc
 from gazereg.experiment.config import EXECUTION_KEYS, ExperimentConfig
-from gazereg.experiment.demos import collection_result, demo_collections, demo_stores
+from gazereg.experiment.demos import collection_result, demo_collections, demo_stores, task_instructions
 from gazereg.experiment.finished import (
     CONFIG_FILE,
     EVAL_INFO,
@@ -178,6 +178,8 @@ class Experiment:
             st = EpisodeStore(ccfg.out)
             frames = sum(st.meta(i)["length"] for i in st.indices())
             out[name] = collection_result(name, report, len(st), frames)
+            if name == "train":
+                out[name]["instructions"] = task_instructions(st)
         return out
 
     def task_names(self) -> dict[str, str]:

@@ -195,7 +195,7 @@ def _header(spec: ReportSpec, outputs: StageOutputs) -> dict[str, Any]:
         "demos": {
             "episodes": outputs.demos.get("episodes"),
             "frames": outputs.demos.get("frames"),
-            **{k: outputs.demos[k] for k in ("wanted", "per_task") if k in outputs.demos},
+            **{k: outputs.demos[k] for k in ("wanted", "per_task", "instructions") if k in outputs.demos},
         },
         "train": {
             "steps": spec.train_steps,

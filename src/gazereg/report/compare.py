@@ -105,8 +105,8 @@ def comparison(
 ) -> dict[str, Any]:
     """Runs A and B compared (each given as its name, saved config, evaluation records and report or None):
     their config differences, the per-arm, per-condition paired comparison of B against A (`rows`, every
-    task pooled; `tasks`, each task's own when they share several: `compare_tasks`), and each run's
-    success-versus-steps curve."""
+    task pooled; `tasks`, each task's own when they share several: `compare_tasks`), each run's
+    success-versus-steps curve, and each task's instruction as the reports state it (B's where both do)."""
     return {
         "a": names[0],
         "b": names[1],
@@ -114,6 +114,12 @@ def comparison(
         "rows": compare_records(*records),
         "tasks": compare_tasks(*records),
         "curves": {"a": success_curves(reports[0]), "b": success_curves(reports[1])},
+        "instructions": {
+            k: v
+            for r in reversed(reports)
+            if r
+            for k, v in r.get("demos", {}).get("instructions", {}).items()
+        },
     }
 
 
@@ -153,11 +159,13 @@ def compare_markdown(result: dict[str, Any], level: int = 2) -> str:
             "| task | arm | condition | A success [95% CI] | B success [95% CI] | only A / only B | McNemar p |",
             "| --- | --- | --- | --- | --- | --- | --- |",
         ]
+        said = result.get("instructions", {})
         for task, rows in tasks.items():
+            label = f"{task}: {said[task]}" if said.get(task) else task
             for name, row in rows.items():
                 arm, cond = name.split(" | ", 1)
                 lines.append(
-                    f"| {task} | {arm} | {cond} | {_pct(row['a'])} | {_pct(row['b'])} "
+                    f"| {label} | {arm} | {cond} | {_pct(row['a'])} | {_pct(row['b'])} "
                     f"| {row['a_only']} / {row['b_only']} | {row['mcnemar_p']:.3g} |"
                 )
     curves = result.get("curves", {})

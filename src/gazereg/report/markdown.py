@@ -38,14 +38,16 @@ def fmt_cell(c: dict[str, Any]) -> str:
 
 def per_task_lines(report: dict[str, Any], condition: str = "clean") -> list[str]:
     """Successes per task under `condition` (pooled over training seeds), Wilson 95%: one row per arm, or with
-    more tasks than arms one row per task (with its demonstrations when the report counts them)."""
+    more tasks than arms or when the report knows each task's instruction one row per task (with its
+    instruction and its demonstrations when the report has them)."""
     t, tasks = report["success"], report["tasks"]
+    said = report.get("demos", {}).get("instructions")
 
     def cell(arm: str, task: str) -> str:
         c = t[arm][condition]["per_task"][task]
         return f"{c['successes']}/{c['n']} [{c['ci95'][0]:.2f}, {c['ci95'][1]:.2f}]"
 
-    if len(tasks) <= len(t):
+    if len(tasks) <= len(t) and not said:
         return [
             f"Per task ({condition}):",
             "",
@@ -54,7 +56,7 @@ def per_task_lines(report: dict[str, Any], condition: str = "clean") -> list[str
             *[f"| {a} | " + " | ".join(cell(a, k) for k in tasks) + " |" for a in t],
         ]
     demos = report.get("demos", {}).get("per_task")
-    head = ["task", *(["demos"] if demos else []), *t]
+    head = ["task", *(["instruction"] if said else []), *(["demos"] if demos else []), *t]
     return [
         f"Per task ({condition}):",
         "",
@@ -62,6 +64,7 @@ def per_task_lines(report: dict[str, Any], condition: str = "clean") -> list[str
         "|---|" + "---|" * (len(head) - 1),
         *[
             f"| {k} | "
+            + (f"{said.get(k, '')} | " if said else "")
             + "".join(f"{demos.get(k, 0)} | " if demos else "")
             + " | ".join(cell(a, k) for a in t)
             + " |"
