@@ -32,6 +32,7 @@ from gazereg.policies.vla.configuration_vla import VLAConfig
 from gazereg.policies.vla.configuration_vla import large as large_policy
 from gazereg.runtime.config import Validated, option, require_choice, require_number
 from gazereg.runtime.errors import UsageError
+from gazereg.training.photometric import PhotometricConfig
 
 EXECUTION_KEYS = (
     "run_dir",
@@ -188,6 +189,9 @@ class TrainConfig(Validated):
     optim: OptimConfig = field(default_factory=OptimConfig)
     shift: int = 4
     """random-shift augmentation in input pixels (0: off); gaze targets are not shifted"""
+    photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
+    """brightness / contrast / saturation jitter of the training frames, every policy (all 0: off;
+    gazereg.training.photometric)"""
     log_every: int = 25
     eval_every: int = 250
     """validation loss, attention-gaze alignment and the callbacks (e.g. rollouts) every this many steps"""

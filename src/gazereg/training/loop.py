@@ -56,6 +56,7 @@ from gazereg.runtime.progress import Progress
 from gazereg.training.checkpoint import prune_checkpoints, save_checkpoint
 from gazereg.training.config import PRESETS, TrainConfig
 from gazereg.training.location import HEAD_NAME, FeatureCapture, LocationHead, average_gradients
+from gazereg.training.photometric import photometric
 from gazereg.training.schedule import step_generator
 from gazereg.training.setup import Run, gaze_spec, setup
 
@@ -89,6 +90,7 @@ def step(run: Run, step: int, batch: dict[str, Tensor]) -> StepOutput:
     cfg, acc = run.cfg, run.acc
     batch = {k: v.to(acc.device, non_blocking=True) for k, v in batch.items()}
     gen = step_generator(cfg.seed, step, acc.process_index, acc.device)
+    batch = photometric(batch, cfg.photometric, gen)  # draws nothing when off
     spec = run.batch_gaze_spec(batch)  # run.gaze_spec itself for the action queries
     w = run.gaze_weight(step) if spec is not None else 0.0
     head = run.location_head
