@@ -19,12 +19,27 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
+from typing import Any, Protocol
 
 from gazereg.evaluation.stats import wilson
-from gazereg.experiment.finished import FinishedRun
 from gazereg.report.tables import paired_name, paired_tests, success_table
 from gazereg.runtime.errors import UsageError
+
+
+class FinishedRun(Protocol):
+    """What the table reads of a finished run (`gazereg.experiment.finished.FinishedRun`, live or archived)."""
+
+    @property
+    def path(self) -> Path: ...
+    @property
+    def env(self) -> str: ...
+    @property
+    def tasks(self) -> tuple[str, ...]: ...
+    @property
+    def train_seeds(self) -> tuple[int, ...]: ...
+    def episodes(self) -> list[dict[str, Any]]: ...
+
 
 ARMS = ("baseline", "gaze", "glc", "uniform")
 """the paper-layout arms, in column order; an arm the run did not train shows as not run"""
