@@ -22,7 +22,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from gazereg.evaluation.stats import wilson
 from gazereg.report.tables import paired_name, paired_tests, success_table
 from gazereg.runtime.errors import UsageError
 
@@ -152,7 +151,7 @@ def row_records(row: Row, run: FinishedRun) -> list[dict[str, Any]]:
 def _cell(c: dict[str, Any] | None) -> str:
     if c is None:
         return "not run"
-    lo, hi = wilson(c["successes"], c["n"])
+    lo, hi = c["ci95"]  # success_table's Wilson 95%
     return f"{100 * c['rate']:.1f} [{100 * lo:.1f}, {100 * hi:.1f}] ({c['successes']}/{c['n']})"
 
 
