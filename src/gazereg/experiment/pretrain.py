@@ -5,6 +5,7 @@ and resumable, to fine-tune on held-out tasks (`gazereg train --init-from`, `gaz
     gazereg pretrain                                  # ML45's 45 training tasks (preset ml45; hours on 2 cores)
     gazereg pretrain --preset toy --out runs/pt     # every stage at toy size, seconds
     gazereg pretrain --train.stop-at 10000            # pause training with a checkpoint; rerun to continue
+    gazereg pretrain --preset ml45_continued          # 30,000 more steps from the committed generalist
 
 Stages (each writes into `out/` and a marker `out/stages/<name>.json` with its wall time over every attempt
 and the git commit it ran at; a rerun skips finished stages and refuses a folder made with another
@@ -20,7 +21,8 @@ configuration but for the execution keys, `pretrain_config.EXECUTION_KEYS`):
             (`gazereg.evaluation.rollout.evaluate`, resumed from its episode log)
   manifest  out/manifest.json: the command line, git commit, the demonstrations' fingerprint (of every
             episode's fingerprint), the SHA-256 of out/policy/model.safetensors, the parameter count, the
-            numerics key, the config, each stage's wall time, the multi-task success, and the options that give
+            numerics key, the config, the saved policy the training started from (`init_from`: its path and
+            SHA-256; None from scratch), each stage's wall time, the multi-task success, and the options that give
             a fine-tuning run this policy's architecture (`finetune_flags`)
 
 Presets and checks: `gazereg.experiment.pretrain_config`; the study around it: docs/pretraining.md.
@@ -61,7 +63,7 @@ from gazereg.runtime.hardware import NumericsKey
 from gazereg.runtime.io import atomic_dir, atomic_write_json, sweep_stale_temps
 from gazereg.runtime.pool import fingerprint_json
 from gazereg.training.checkpoint import latest_checkpoint, list_checkpoints
-from gazereg.training.init_from import file_sha256
+from gazereg.training.init_from import INIT_RECORD, file_sha256
 from gazereg.training.loop import train
 from gazereg.training.numerics import read_numerics
 
@@ -260,6 +262,7 @@ class Pretraining:
                 "parameters_and_buffers": n_params,
                 "finetune_flags": finetune_flags(self.cfg.train.policy),
             },
+            "init_from": _init_record(self.train_dir),
             "numerics": NumericsKey.here(trained["mixed_precision"]).to_dict(),
             "training_attempts": _attempts(self.train_dir),
             "evaluation": {
@@ -271,6 +274,12 @@ class Pretraining:
             "versions": versions(("gazereg", "torch", "metaworld", "mujoco")),
             "config": to_dict(self.cfg),
         }
+
+
+def _init_record(train_dir: Path) -> dict[str, Any] | None:
+    """The saved policy the training started from (its path and weights' SHA-256), None from scratch."""
+    path = train_dir / INIT_RECORD
+    return json.loads(path.read_text()) if path.exists() else None
 
 
 def _attempts(train_dir: Path) -> list[dict[str, Any]] | None:

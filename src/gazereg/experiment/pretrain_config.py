@@ -1,4 +1,4 @@
-"""`gazereg pretrain`'s configuration, its presets (`ml45`, `toy`) and what it checks before any work.
+"""`gazereg pretrain`'s configuration, its presets (`ml45`, `ml45_continued`, `toy`) and what it checks before any work.
 
     cfg = PRESETS["toy"]()                  # 2 tasks, a tiny policy, seconds
     preflight(cfg)                            # tasks, held-out tasks, instructions vs the tokenizer
@@ -41,6 +41,8 @@ from gazereg.training.config import ci as ci_train
 from gazereg.training.config import tuned as tuned_train
 from gazereg.training.init_from import read_init
 
+CONTINUED_FROM = Path("models/ml45")
+"""where `ml45_continued` starts: the committed generalist, `ml45`'s policy (relative to the repository root)"""
 TEXT_TOKENS = 16
 """word tokens of the presets' instruction: the longest ML45 instruction has 13 words"""
 
@@ -205,6 +207,19 @@ def ml45() -> PretrainConfig:
     return PretrainConfig(out=Path("runs/pretrain"), tasks=ml45_split().train, train=ml45_train())
 
 
+def ml45_continued() -> PretrainConfig:
+    """More pretraining of the committed generalist (`CONTINUED_FROM`, `ml45`'s policy): the same tasks,
+    demonstrations (recollected bit for bit, or resumed from a copy of `ml45`'s store) and evaluation, 30,000
+    further steps from its weights with the learning-rate schedule restarted (warmup, then cosine to zero), so
+    60,000 steps in all. Added because `ml45` underfits (its validation loss still fell at the end) and its
+    fine-tuning did not beat training from scratch (docs/pretraining.md). Its training records the start's
+    path and SHA-256 (train/init_from.json)."""
+    base = ml45()
+    return replace(
+        base, out=Path("runs/pretrain-continued"), train=replace(base.train, init_from=CONTINUED_FROM)
+    )
+
+
 def toy() -> PretrainConfig:
     """Every stage at toy size (tests/test_pretrain.py): 2 tasks, 2 demonstrations each at 48 px, a 2-layer
     64-wide policy trained 6 steps, 1 evaluation episode of 10 steps per task."""
@@ -236,5 +251,5 @@ def toy() -> PretrainConfig:
     )
 
 
-PRESETS = {"ml45": ml45, "toy": toy}
+PRESETS = {"ml45": ml45, "ml45_continued": ml45_continued, "toy": toy}
 """`gazereg pretrain --preset NAME`; the first is the default"""
