@@ -20,6 +20,11 @@ Protocol (fixed on 2026-11-27, before any fine-tuning result existed):
   policy from random weights: `sc-default`, `sc-lr1e-4`, `sc-lr1e-3`, `sc-steps6k`), so that "does pretraining
   help" compares each initialisation at its own best recipe. Off the chain: the later steps take the `recipe`
   step's choice, never this one's.
+- Step `generalist` (added on 2026-11-27, before its result, after the recipe steps left the generalist's lead
+  over scratch not significant, 25 against 20 of 100): the baseline fine-tuning of a longer-pretrained generalist,
+  `gazereg pretrain --preset ml45_continued` (the committed one trained 30,000 steps more; its policy in
+  runs/pretrain-continued/policy): `gc-steps6k` at the recipe step's choice (6,000 steps), then `gc-default`
+  (the preset's 3,000). Off the chain, like `recipe-scratch`: it says whether more pretraining pays.
 - Step `weight` (arm gaze only, the visuomotor prior, on the chosen recipe's overrides): `w1e-3`, `w1e-2`,
   `w1e-1`, `w1`, `w10` (--train.gaze.weight; the gaze KL against the action loss's scale), action queries,
   default layers (-2 -1). Choice as above (ties to the smaller weight, the earlier).
@@ -76,6 +81,10 @@ BASE = [
 ]  # fmt: skip
 
 
+CONTINUED = ("--train.init-from", "runs/pretrain-continued/policy")
+"""the longer-pretrained generalist (`gazereg pretrain --preset ml45_continued`)"""
+
+
 @dataclass(frozen=True)
 class Step:
     """One tuning step: its arm, and its candidates' own changes (on the earlier steps' chosen overrides);
@@ -108,6 +117,10 @@ def _recipe(prefix: str) -> tuple[Candidate, ...]:
 STEPS = (
     Step("recipe", "baseline", _recipe("ft")),
     Step("recipe-scratch", "baseline", _recipe("sc"), preset="ml45_scratch", chained=False),
+    Step("generalist", "baseline", (
+        _c("gc-steps6k", "the continued generalist, 6,000 steps", *CONTINUED, "--train.steps", "6000"),
+        _c("gc-default", "the continued generalist, the preset's 3,000 steps", *CONTINUED),
+    ), chained=False),
     Step("weight", "gaze", tuple(
         _c(f"w{w}", f"gaze weight {w}", "--train.gaze.weight", w) for w in ("1e-3", "1e-2", "1e-1", "1", "10")
     )),
@@ -303,7 +316,8 @@ def table() -> str:
         "setups 1300..1319 of ML45's held-out tasks, recounted from its archive in docs/records/tune-ft/ (its",
         "command in docs/tuning/finetune/<candidate>.json). Gaze scale: the gaze weight times the final",
         "training gaze KL, and its ratio to the final training action loss. The recipe-scratch rows train the same",
-        "policy from random weights (`ml45_scratch`); every other row fine-tunes the generalist.",
+        "policy from random weights (`ml45_scratch`), the generalist rows fine-tune the longer-pretrained",
+        "generalist (`gazereg pretrain --preset ml45_continued`); every other row fine-tunes the committed one.",
         "",
     ]
     header = ("step", "candidate", "change", "validation success", "per task", "gaze scale", "action loss")

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -20,8 +21,14 @@ from gazereg.data.store import EpisodeStore
 from gazereg.envs.collect import collect
 from gazereg.envs.collect_config import CollectConfig
 from gazereg.experiment.config import ExperimentConfig
+from gazereg.experiment.config_finetune import GENERALIST
 from gazereg.experiment.pretrain import STAGES, Pretraining, store_fingerprint
-from gazereg.experiment.pretrain_config import PRESETS, finetune_flags, held_out_instructions
+from gazereg.experiment.pretrain_config import (
+    CONTINUED_FROM,
+    PRESETS,
+    finetune_flags,
+    held_out_instructions,
+)
 from gazereg.experiment.runner import Experiment
 from gazereg.policies import load_policy
 from gazereg.report.ids import RunId
@@ -94,6 +101,27 @@ def test_pretrain_runs_every_stage_and_writes_its_manifest(pretrained, capsys):
     assert cli.main(["pretrain", "--preset", "toy", "--out", str(pretrained)]) == 0
     assert (policy / "model.safetensors").stat().st_mtime_ns == before
     assert "fine-tune with: --train.init-from" in capsys.readouterr().out
+
+
+def test_a_continued_pretraining_records_the_policy_it_started_from(pretrained, tmp_path):
+    """`--train.init-from` on a pretraining (the ml45_continued preset's way): the manifest names the start's
+    path and SHA-256; a pretraining from scratch names none. Its demonstrations resume from a copy."""
+    assert json.loads((pretrained / "manifest.json").read_text())["init_from"] is None
+    out = tmp_path / "continued"
+    shutil.copytree(pretrained / "demos", out / "demos")
+    start = pretrained / "policy"
+    args = ["pretrain", "--preset", "toy", "--out", str(out), "--train.init-from", str(start)]
+    assert cli.main(args) == 0
+    record = json.loads((out / "manifest.json").read_text())["init_from"]
+    assert record["model_sha256"] == file_sha256(start / "model.safetensors")
+    assert record["path"] == str(start)
+    assert file_sha256(out / "policy" / "model.safetensors") != record["model_sha256"]  # it trained
+    assert (
+        json.loads((out / "stages" / "demos.json").read_text())["episodes"] == 4
+    )  # resumed, not recollected
+    ml45, continued = PRESETS["ml45"](), PRESETS["ml45_continued"]()
+    assert continued.train.init_from == CONTINUED_FROM == GENERALIST  # the committed generalist
+    assert replace(continued, out=ml45.out, train=replace(continued.train, init_from=None)) == ml45
 
 
 def test_every_stage_shows_its_progress_unless_told_not_to(pretrained):

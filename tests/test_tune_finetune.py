@@ -101,7 +101,7 @@ def test_the_commands_of_each_step(tune):
     both = entry(tune, "q-both").command
     assert both[len(base) + 2 : -2] == ["--train.optim.lr", "1e-3", "--train.gaze.weight", "1e-2",
                                         "--train.gaze.queries", "both"]  # fmt: skip
-    assert entry(tune, "w1e-2").candidate.name in [e.candidate.name for e in tune.plan()[3][1]]  # carried
+    assert entry(tune, "w1e-2").candidate.name in [e.candidate.name for e in tune.plan()[4][1]]  # carried
     fake_archive(tune, "q-language", 50)
     fake_archive(tune, "q-both", 51)
     gaze = parse(PRESETS, entry(tune, "l-middle").command[2:], prog="test").train.gaze
@@ -134,6 +134,28 @@ def test_the_scratch_recipe_step_stands_beside_the_chain(tune, capsys):
     assert "- recipe-scratch: **sc-lr1e-3**, learning rate 1e-3" in tune.table()
 
 
+def test_the_generalist_step_fine_tunes_the_continued_generalist_beside_the_chain(tune):
+    """The longer-pretrained generalist's baseline fine-tuning, runnable at any time, its choice passed on to no
+    later step."""
+    cmd = entry(tune, "gc-steps6k").command
+    assert cmd[:4] == ["gazereg", "experiment", "--preset", "ml45_finetune"]
+    cfg = parse(PRESETS, cmd[2:], prog="test")
+    assert (str(cfg.train.init_from), cfg.train.steps, cfg.arms) == (
+        "runs/pretrain-continued/policy",
+        6000,
+        ("baseline",),
+    )
+    assert parse(PRESETS, entry(tune, "gc-default").command[2:], prog="test").train.steps == 3000
+    assert [e.candidate.name for e in tune.runnable("generalist", None)] == ["gc-steps6k", "gc-default"]
+    for name, k in (("ft-default", 30), ("ft-lr1e-4", 31), ("ft-lr1e-3", 20), ("ft-steps6k", 20)):
+        fake_archive(tune, name, k)
+    fake_archive(tune, "gc-steps6k", 35)
+    fake_archive(tune, "gc-default", 36)
+    assert [c and c.candidate.name for _, _, c in tune.plan()][:3] == ["ft-lr1e-4", None, "gc-default"]
+    assert entry(tune, "w1").overrides == ("--train.optim.lr", "1e-4", "--train.gaze.weight", "1")
+    assert "- generalist: **gc-default**, the continued generalist, the preset's 3,000 steps" in tune.table()
+
+
 def test_a_step_waits_for_the_previous_one(tune, capsys):
     fake_archive(tune, "ft-default", 40)
     assert tune.main(["--step", "weight"]) == 2
@@ -158,7 +180,14 @@ def test_the_choice_is_the_most_successes_ties_to_the_earlier(tune):
     for name, k in (("l-early", 50), ("l-middle", 51), ("l-last", 51)):
         fake_archive(tune, name, k)
     chosen = [c and c.candidate.name for _, _, c in tune.plan()]
-    assert chosen == ["ft-default", None, "w1e-2", "w1e-2", "l-middle"]  # recipe-scratch not run
+    assert chosen == [
+        "ft-default",
+        None,
+        None,
+        "w1e-2",
+        "w1e-2",
+        "l-middle",
+    ]  # recipe-scratch, generalist not run
     assert entry(tune, "l-middle").overrides == (
         "--train.gaze.weight",
         "1e-2",
