@@ -189,14 +189,8 @@ def test_the_header_states_the_gaze_term_only_where_an_arm_trains_with_it(report
 def test_the_per_task_table_carries_each_tasks_instruction(report):
     from gazereg.experiment.demos import task_instructions
 
-    class Store:  # an episode store as task_instructions reads one
-        def indices(self):
-            return [0, 1, 2]
-
-        def meta(self, i):
-            return [{"task": "reach-v3", "instruction": "Reach the goal."}, {"task": "reach-v3"}][min(i, 1)]
-
-    said = task_instructions(Store())
+    metas = [{"task": "reach-v3", "instruction": "Reach the goal."}, {"task": "reach-v3"}]
+    said = task_instructions(metas)
     assert said == {"reach-v3": "Reach the goal."}  # the first episode's
     report.setdefault("demos", {})["instructions"] = said
     lines = per_task_lines(report)

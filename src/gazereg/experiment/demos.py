@@ -10,6 +10,7 @@ expert's failures), the held-out ones (attention-gaze alignment only, never trai
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -63,23 +64,25 @@ def demo_collections(cfg: ExperimentConfig, out: Path) -> dict[str, CollectConfi
     return sets
 
 
-def task_instructions(store: EpisodeStore) -> dict[str, str]:
-    """{task: its instruction} of the store's episodes, sorted by task (the first episode's, when a task's
-    episodes differ)."""
+def task_instructions(metas: Iterable[Mapping[str, Any]]) -> dict[str, str]:
+    """{task: its instruction} of episodes' metadata (`EpisodeStore.meta`), sorted by task (the first
+    episode's, when a task's episodes differ)."""
     out: dict[str, str] = {}
-    for i in store.indices():
-        meta = store.meta(i)
+    for meta in metas:
         out.setdefault(str(meta["task"]), str(meta.get("instruction", "")))
     return dict(sorted(out.items()))
 
 
-def collection_result(name: str, report: CollectReport, episodes: int, frames: int) -> dict[str, Any]:
-    """What the demos stage records of one collection: episodes and frames in its store, seconds and, for
-    the training demonstrations, the episodes wanted and kept per task. RuntimeError when a collection
+def collection_result(name: str, report: CollectReport, store: EpisodeStore) -> dict[str, Any]:
+    """What the demos stage records of one collection: episodes and frames in its store (one read of each
+    episode's metadata), seconds and, for the training demonstrations, the episodes wanted and kept per task
+    and each task's instruction (`task_instructions`). RuntimeError when a collection
     other than the training one is incomplete, or when some task has no training demonstration at all
     (fewer than wanted is accepted there: the expert failed on some of the allowed setups)."""
     per_task = {task: r["episodes"] for task, r in report.tasks.items()}
-    out: dict[str, Any] = {"episodes": episodes, "frames": frames, "seconds": report.seconds}
+    metas = [store.meta(i) for i in store.indices()]
+    frames = sum(int(m["length"]) for m in metas)
+    out: dict[str, Any] = {"episodes": len(metas), "frames": frames, "seconds": report.seconds}
     if name != "train":
         if not report.complete:
             raise RuntimeError(
@@ -93,4 +96,4 @@ def collection_result(name: str, report: CollectReport, episodes: int, frames: i
             f"({report.tasks[empty[0]]['failed_seeds']}); raise --demo-max-failures"
         )
     wanted = next(iter(report.tasks.values()))["wanted"]
-    return {**out, "wanted": wanted, "per_task": per_task}
+    return {**out, "wanted": wanted, "per_task": per_task, "instructions": task_instructions(metas)}

@@ -175,9 +175,10 @@ class Pretraining:
     def stage_demos(self, _: dict[str, Any]) -> dict[str, Any]:
         """The demonstrations; every task must keep at least one (`experiment.demos.collection_result`)."""
         report = collect(self.collect_config())
-        store = EpisodeStore(self.demos)
-        frames = sum(int(store.meta(i)["length"]) for i in store.indices())
-        return {**collection_result("train", report, len(store), frames), "seeds": [PRETRAIN_DEMOS.start]}
+        return {
+            **collection_result("train", report, EpisodeStore(self.demos)),
+            "seeds": [PRETRAIN_DEMOS.start],
+        }
 
     def train_config(self) -> Any:
         c, t = self.cfg, self.cfg.train

@@ -55,7 +55,7 @@ from gazereg.evaluation.config import EvalConfig
 from gazereg.evaluation.rollout import evaluate
 from gazereg.experiment.arms import PriorSpec, arm_prior, gaze_prior, gaze_target, trains_glc
 from gazereg.experiment.config import EXECUTION_KEYS, ExperimentConfig
-from gazereg.experiment.demos import collection_result, demo_collections, demo_stores, task_instructions
+from gazereg.experiment.demos import collection_result, demo_collections, demo_stores
 from gazereg.experiment.finished import (
     CONFIG_FILE,
     EVAL_INFO,
@@ -174,12 +174,7 @@ class Experiment:
         per task (the expert failed on some allowed setup), the others not (`demos.collection_result`)."""
         out = {}
         for name, ccfg in demo_collections(self.cfg, self.out).items():
-            report = collect(ccfg)
-            st = EpisodeStore(ccfg.out)
-            frames = sum(st.meta(i)["length"] for i in st.indices())
-            out[name] = collection_result(name, report, len(st), frames)
-            if name == "train":
-                out[name]["instructions"] = task_instructions(st)
+            out[name] = collection_result(name, collect(ccfg), EpisodeStore(ccfg.out))
         return out
 
     def task_names(self) -> dict[str, str]:
