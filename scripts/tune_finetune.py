@@ -21,10 +21,11 @@ Protocol (fixed on 2026-11-27, before any fine-tuning result existed):
   help" compares each initialisation at its own best recipe. Off the chain: the later steps take the `recipe`
   step's choice, never this one's.
 - Step `generalist` (added on 2026-11-27, before its result, after the recipe steps left the generalist's lead
-  over scratch not significant, 25 against 20 of 100): the baseline fine-tuning of a longer-pretrained generalist,
-  `gazereg pretrain --preset ml45_continued` (the committed one trained 30,000 steps more; its policy in
-  runs/pretrain-continued/policy): `gc-steps6k` at the recipe step's choice (6,000 steps), then `gc-default`
-  (the preset's 3,000). Off the chain, like `recipe-scratch`: it says whether more pretraining pays.
+  over scratch not significant, 25 against 20 of 100): which generalist the gaze steps fine-tune, at the recipe
+  step's choice, gaze blind. The committed one (the recipe step's chosen run, not rerun) against `g-continued`,
+  the longer-pretrained `gazereg pretrain --preset ml45_continued` (the committed one trained 30,000 steps
+  more; its policy in runs/pretrain-continued/policy, --train.init-from). Choice as above (ties keep the
+  committed one); the later steps fine-tune the chosen generalist.
 - Step `weight` (arm gaze only, the visuomotor prior, on the chosen recipe's overrides): `w1e-3`, `w1e-2`,
   `w1e-1`, `w1`, `w10` (--train.gaze.weight; the gaze KL against the action loss's scale), action queries,
   default layers (-2 -1). Choice as above (ties to the smaller weight, the earlier).
@@ -118,9 +119,8 @@ STEPS = (
     Step("recipe", "baseline", _recipe("ft")),
     Step("recipe-scratch", "baseline", _recipe("sc"), preset="ml45_scratch", chained=False),
     Step("generalist", "baseline", (
-        _c("gc-steps6k", "the continued generalist, 6,000 steps", *CONTINUED, "--train.steps", "6000"),
-        _c("gc-default", "the continued generalist, the preset's 3,000 steps", *CONTINUED),
-    ), chained=False),
+        _c("g-continued", "the longer-pretrained generalist (ml45_continued)", *CONTINUED),
+    ), default="the committed generalist (models/ml45)"),
     Step("weight", "gaze", tuple(
         _c(f"w{w}", f"gaze weight {w}", "--train.gaze.weight", w) for w in ("1e-3", "1e-2", "1e-1", "1", "10")
     )),
@@ -294,12 +294,13 @@ def choices(steps: list[tuple[Step, list[Entry], Entry | None]]) -> list[str]:
     for step, _, chosen in steps:
         pick = "not yet" if chosen is None else f"**{chosen.candidate.name}**, {chosen.candidate.change}"
         lines.append(f"- {step.name}: {pick}")
-    recipe, last = steps[0][2], steps[-1][2]
-    if last is not None and recipe is not None and last.overrides is not None:
-        flags, gaze = recipe.overrides or (), last.overrides[len(recipe.overrides or ()) :]
+    every_arm = next(chosen for step, _, chosen in steps if step.name == "generalist")
+    last = steps[-1][2]
+    if last is not None and every_arm is not None and last.overrides is not None:
+        flags, gaze = every_arm.overrides or (), last.overrides[len(every_arm.overrides or ()) :]
         lines += [
             "",
-            f"**Final choice**: recipe `{shlex.join(flags) or 'the preset, no override'}` (every arm); "
+            f"**Final choice**: recipe and generalist `{shlex.join(flags) or 'the preset, no override'}` (every arm); "
             f"gaze term `{shlex.join(gaze) or 'the defaults, no override'}` (the gaze arm).",
         ]
     return lines
@@ -316,8 +317,9 @@ def table() -> str:
         "setups 1300..1319 of ML45's held-out tasks, recounted from its archive in docs/records/tune-ft/ (its",
         "command in docs/tuning/finetune/<candidate>.json). Gaze scale: the gaze weight times the final",
         "training gaze KL, and its ratio to the final training action loss. The recipe-scratch rows train the same",
-        "policy from random weights (`ml45_scratch`), the generalist rows fine-tune the longer-pretrained",
-        "generalist (`gazereg pretrain --preset ml45_continued`); every other row fine-tunes the committed one.",
+        "policy from random weights (`ml45_scratch`); g-continued fine-tunes the longer-pretrained generalist",
+        "(`gazereg pretrain --preset ml45_continued`); the rows after it, the generalist step's choice; the",
+        "rows before it, the committed one.",
         "",
     ]
     header = ("step", "candidate", "change", "validation success", "per task", "gaze scale", "action loss")

@@ -90,6 +90,12 @@ def test_the_commands_of_each_step(tune):
 
     for name, k in (("ft-default", 40), ("ft-lr1e-4", 30), ("ft-lr1e-3", 45), ("ft-steps6k", 45)):
         fake_archive(tune, name, k)
+    assert entry(tune, "w1e-2").overrides is None  # unknown until the generalist step has chosen
+    assert entry(tune, "g-continued").command[len(base) :] == [
+        "--arms", "baseline", "--train.optim.lr", "1e-3", "--train.init-from", "runs/pretrain-continued/policy",
+        "--out", "runs/tune-ft/g-continued",
+    ]  # fmt: skip
+    fake_archive(tune, "g-continued", 45)  # ties the committed generalist's run: it stays
     weight = entry(tune, "w1e-2").command
     assert weight[len(base) :] == ["--arms", "gaze", "--train.optim.lr", "1e-3", "--train.gaze.weight", "1e-2",
                                    "--out", "runs/tune-ft/w1e-2"]  # fmt: skip
@@ -130,40 +136,45 @@ def test_the_scratch_recipe_step_stands_beside_the_chain(tune, capsys):
     for name, k in (("sc-default", 30), ("sc-lr1e-4", 20), ("sc-lr1e-3", 40), ("sc-steps6k", 20)):
         fake_archive(tune, name, k)
     assert [c and c.candidate.name for _, _, c in tune.plan()][:2] == ["ft-lr1e-4", "sc-lr1e-3"]
+    fake_archive(tune, "g-continued", 10)  # the committed generalist stays
     assert entry(tune, "w1").overrides == ("--train.optim.lr", "1e-4", "--train.gaze.weight", "1")
     assert "- recipe-scratch: **sc-lr1e-3**, learning rate 1e-3" in tune.table()
 
 
-def test_the_generalist_step_fine_tunes_the_continued_generalist_beside_the_chain(tune):
-    """The longer-pretrained generalist's baseline fine-tuning, runnable at any time, its choice passed on to no
-    later step."""
-    cmd = entry(tune, "gc-steps6k").command
-    assert cmd[:4] == ["gazereg", "experiment", "--preset", "ml45_finetune"]
-    cfg = parse(PRESETS, cmd[2:], prog="test")
-    assert (str(cfg.train.init_from), cfg.train.steps, cfg.arms) == (
-        "runs/pretrain-continued/policy",
-        6000,
-        ("baseline",),
-    )
-    assert parse(PRESETS, entry(tune, "gc-default").command[2:], prog="test").train.steps == 3000
-    assert [e.candidate.name for e in tune.runnable("generalist", None)] == ["gc-steps6k", "gc-default"]
+def test_the_generalist_step_chooses_which_generalist_the_gaze_steps_fine_tune(tune):
+    """After the recipe step: its chosen run (the committed generalist) against the longer-pretrained one at
+    the same recipe; the gaze steps fine-tune the one chosen."""
+    assert entry(tune, "g-continued").overrides is None  # unknown until the recipe step has chosen
     for name, k in (("ft-default", 30), ("ft-lr1e-4", 31), ("ft-lr1e-3", 20), ("ft-steps6k", 20)):
         fake_archive(tune, name, k)
-    fake_archive(tune, "gc-steps6k", 35)
-    fake_archive(tune, "gc-default", 36)
-    assert [c and c.candidate.name for _, _, c in tune.plan()][:3] == ["ft-lr1e-4", None, "gc-default"]
-    assert entry(tune, "w1").overrides == ("--train.optim.lr", "1e-4", "--train.gaze.weight", "1")
-    assert "- generalist: **gc-default**, the continued generalist, the preset's 3,000 steps" in tune.table()
+    cfg = parse(PRESETS, entry(tune, "g-continued").command[2:], prog="test")
+    assert (str(cfg.train.init_from), cfg.train.optim.lr, cfg.arms) == (
+        "runs/pretrain-continued/policy",
+        1e-4,
+        ("baseline",),
+    )
+    carried = tune.plan()[2][1][0]
+    assert (carried.carried, carried.candidate.name) == (True, "ft-lr1e-4")
+    assert [e.candidate.name for e in tune.runnable(None, None)] == ["sc-default", "sc-lr1e-4", "sc-lr1e-3",
+                                                                     "sc-steps6k"]  # fmt: skip
+    assert [e.candidate.name for e in tune.runnable("generalist", None)] == ["g-continued"]
+    fake_archive(tune, "g-continued", 36)
+    assert [c and c.candidate.name for _, _, c in tune.plan()][:3] == ["ft-lr1e-4", None, "g-continued"]
+    assert entry(tune, "w1").overrides == (
+        "--train.optim.lr", "1e-4", "--train.init-from", "runs/pretrain-continued/policy",
+        "--train.gaze.weight", "1",
+    )  # fmt: skip
+    assert "- generalist: **g-continued**, the longer-pretrained generalist (ml45_continued)" in tune.table()
 
 
 def test_a_step_waits_for_the_previous_one(tune, capsys):
     fake_archive(tune, "ft-default", 40)
     assert tune.main(["--step", "weight"]) == 2
     assert "step weight runs once the steps before it have finished; not run yet: ft-lr1e-4, ft-lr1e-3, " \
-        "ft-steps6k" in capsys.readouterr().err  # fmt: skip
+        "ft-steps6k, g-continued" in capsys.readouterr().err  # fmt: skip
     assert tune.main(["--only", "q-both"]) == 2
     assert (
-        "not run yet: ft-lr1e-4, ft-lr1e-3, ft-steps6k, w1e-3, w1e-2, w1e-1, w1, w10"
+        "not run yet: ft-lr1e-4, ft-lr1e-3, ft-steps6k, g-continued, w1e-3, w1e-2, w1e-1, w1, w10"
         in capsys.readouterr().err
     )
     assert [e.candidate.name for e in tune.runnable(None, None)] == ["ft-lr1e-4", "ft-lr1e-3", "ft-steps6k"]
@@ -173,6 +184,7 @@ def test_a_step_waits_for_the_previous_one(tune, capsys):
 def test_the_choice_is_the_most_successes_ties_to_the_earlier(tune):
     for name in ("ft-default", "ft-lr1e-4", "ft-lr1e-3", "ft-steps6k"):
         fake_archive(tune, name, 30)  # all tie: the preset
+    fake_archive(tune, "g-continued", 30)  # ties: the committed generalist
     for name, k in (("w1e-3", 40), ("w1e-2", 50), ("w1e-1", 49), ("w1", 50), ("w10", 10)):
         fake_archive(tune, name, k)  # w1e-2 and w1 tie: the smaller weight
     fake_archive(tune, "q-language", 49)
@@ -183,11 +195,11 @@ def test_the_choice_is_the_most_successes_ties_to_the_earlier(tune):
     assert chosen == [
         "ft-default",
         None,
-        None,
+        "ft-default",
         "w1e-2",
         "w1e-2",
         "l-middle",
-    ]  # recipe-scratch, generalist not run
+    ]  # recipe-scratch not run
     assert entry(tune, "l-middle").overrides == (
         "--train.gaze.weight",
         "1e-2",
@@ -196,7 +208,7 @@ def test_the_choice_is_the_most_successes_ties_to_the_earlier(tune):
         "2",
     )
     text = tune.table()
-    assert "**Final choice**: recipe `the preset, no override` (every arm); gaze term " \
+    assert "**Final choice**: recipe and generalist `the preset, no override` (every arm); gaze term " \
         "`--train.gaze.weight 1e-2 --train.gaze.layers 1 2` (the gaze arm)." in text  # fmt: skip
     assert "| queries | w1e-2 | the action queries (w1e-2's run, not rerun) | 50/100 = 0.50 |" in text
 
@@ -219,7 +231,7 @@ def test_the_table_recounts_each_row_from_its_archive(tune):
 
 
 def test_the_gaze_scale_is_read_from_the_training_metrics(tune):
-    for name in ("ft-default", "ft-lr1e-4", "ft-lr1e-3", "ft-steps6k"):
+    for name in ("ft-default", "ft-lr1e-4", "ft-lr1e-3", "ft-steps6k", "g-continued"):
         fake_archive(tune, name, 30)
     dest = fake_archive(tune, "w1", 50)
     for seed, kl in enumerate((0.2, 0.3, 0.4)):  # the copied archive's three runs: gaze@s0..s2
