@@ -1,6 +1,7 @@
-"""The pretraining study's blocks on docs/pretraining.md recompute from the committed archives (issue 36): the
-generalist's block from docs/records/pretrain-ml45, and each pretrained-against-from-scratch comparison from the
-two fine-tuning runs' archives, exactly as `scripts/update_results.py` renders them (the block's run paths
+"""The pretraining study's blocks on docs/pretraining.md recompute from the committed archives (issue 36): each
+generalist's block from its archive in docs/records, each pretrained-against-from-
+scratch comparison from the two fine-tuning runs' archives, and the longer-pretrained generalist's validation
+comparisons from the tuning archives (docs/records/tune-ft), exactly as `scripts/update_results.py` renders them (the block's run paths
 included)."""
 
 from __future__ import annotations
@@ -23,10 +24,26 @@ COMPARISONS = {
 }
 
 
-def test_the_generalists_block_is_its_archive_rendered(script):
-    assert (
-        script.read_block(PAGE, "pretrain-ml45") == read_pretraining(ROOT / RECORDS / "pretrain-ml45").block()
-    )
+@pytest.mark.parametrize("marker", ["pretrain-ml45"])
+def test_each_generalists_block_is_its_archive_rendered(script, marker):
+    assert script.read_block(PAGE, marker) == read_pretraining(ROOT / RECORDS / marker).block()
+
+
+VALIDATION = {
+    "generalist-vs-scratch": ("tune-ft/sc-default", "tune-ft/g-continued"),
+    "generalist-vs-committed": ("tune-ft/ft-steps6k", "tune-ft/g-continued"),
+}
+"""the longer-pretrained generalist's validation fine-tuning against scratch's and the committed one's"""
+
+
+@pytest.mark.parametrize("marker", sorted(VALIDATION))
+def test_each_validation_comparison_block_is_its_two_archives_compared(script, marker, monkeypatch):
+    a, b = (RECORDS / name for name in VALIDATION[marker])
+    monkeypatch.chdir(ROOT)
+    block = compare_markdown(compare_runs(a, b), level=4)
+    assert script.read_block(PAGE, marker) == block
+    assert "'runs/pretrain-continued/policy'" in block  # B starts from the longer-pretrained generalist
+    assert read_run(a).config["eval"]["seed_start"] == read_run(b).config["eval"]["seed_start"] == 1300
 
 
 @pytest.mark.parametrize("marker", sorted(COMPARISONS))
