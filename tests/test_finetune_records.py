@@ -24,7 +24,7 @@ COMPARISONS = {
 }
 
 
-@pytest.mark.parametrize("marker", ["pretrain-ml45"])
+@pytest.mark.parametrize("marker", ["pretrain-ml45", "pretrain-ml45-continued"])
 def test_each_generalists_block_is_its_archive_rendered(script, marker):
     assert script.read_block(PAGE, marker) == read_pretraining(ROOT / RECORDS / marker).block()
 
