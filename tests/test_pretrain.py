@@ -24,7 +24,6 @@ from gazereg.experiment.config import ExperimentConfig
 from gazereg.experiment.config_finetune import GENERALIST
 from gazereg.experiment.pretrain import STAGES, Pretraining, store_fingerprint
 from gazereg.experiment.pretrain_config import (
-    CONTINUED_FROM,
     PRESETS,
     finetune_flags,
     held_out_instructions,
@@ -120,7 +119,7 @@ def test_a_continued_pretraining_records_the_policy_it_started_from(pretrained, 
         json.loads((out / "stages" / "demos.json").read_text())["episodes"] == 4
     )  # resumed, not recollected
     ml45, continued = PRESETS["ml45"](), PRESETS["ml45_continued"]()
-    assert continued.train.init_from == CONTINUED_FROM == GENERALIST  # the committed generalist
+    assert continued.train.init_from == GENERALIST  # the committed generalist
     assert replace(continued, out=ml45.out, train=replace(continued.train, init_from=None)) == ml45
 
 

@@ -21,12 +21,8 @@ from pathlib import Path
 from gazereg.envs.metaworld.ml45 import ml45_split
 from gazereg.evaluation.config import EvalConfig
 from gazereg.experiment.config import PRESETS, ExperimentConfig
-from gazereg.experiment.pretrain_config import held_out_instructions, ml45_policy
+from gazereg.experiment.pretrain_config import GENERALIST, held_out_instructions, ml45_policy
 from gazereg.training.config import tuned as tuned_train
-
-GENERALIST = Path("models/ml45")
-"""the committed generalist (relative to the repository root): `gazereg pretrain --preset ml45`'s policy
-folder (model.safetensors, config.json, tokenizer.json) with its manifest.json"""
 
 
 def ml45_finetune() -> ExperimentConfig:

@@ -41,8 +41,10 @@ from gazereg.training.config import ci as ci_train
 from gazereg.training.config import tuned as tuned_train
 from gazereg.training.init_from import read_init
 
-CONTINUED_FROM = Path("models/ml45")
-"""where `ml45_continued` starts: the committed generalist, `ml45`'s policy (relative to the repository root)"""
+GENERALIST = Path("models/ml45")
+"""the committed generalist (relative to the repository root): `ml45`'s policy folder (model.safetensors,
+config.json, tokenizer.json) with its manifest.json; `ml45_continued` starts from it, the fine-tuning presets
+(gazereg.experiment.config_finetune) fine-tune it"""
 TEXT_TOKENS = 16
 """word tokens of the presets' instruction: the longest ML45 instruction has 13 words"""
 
@@ -208,16 +210,14 @@ def ml45() -> PretrainConfig:
 
 
 def ml45_continued() -> PretrainConfig:
-    """More pretraining of the committed generalist (`CONTINUED_FROM`, `ml45`'s policy): the same tasks,
+    """More pretraining of the committed generalist (`GENERALIST`, `ml45`'s policy): the same tasks,
     demonstrations (recollected bit for bit, or resumed from a copy of `ml45`'s store) and evaluation, 30,000
     further steps from its weights with the learning-rate schedule restarted (warmup, then cosine to zero), so
     60,000 steps in all. Added because `ml45` underfits (its validation loss still fell at the end) and its
     fine-tuning did not beat training from scratch (docs/pretraining.md). Its training records the start's
     path and SHA-256 (train/init_from.json)."""
     base = ml45()
-    return replace(
-        base, out=Path("runs/pretrain-continued"), train=replace(base.train, init_from=CONTINUED_FROM)
-    )
+    return replace(base, out=Path("runs/pretrain-continued"), train=replace(base.train, init_from=GENERALIST))
 
 
 def toy() -> PretrainConfig:
