@@ -117,6 +117,20 @@ def test_compare_runs_cli_writes_markdown_and_json(tmp_path, capsys):
     assert "2/4 = 0.50" in capsys.readouterr().out
 
 
+def test_a_key_added_since_the_older_run_counts_at_its_default(tmp_path):
+    """A run saved before `train.photometric` existed trained without it: against a newer run that keeps it
+    at its default nothing differs; a newer run that sets it differs from the default, named as such."""
+    zeros = {"brightness": 0.0, "contrast": 0.0, "saturation": 0.0}
+    old = write_run(tmp_path, "old", {"out": "old", "train": {"steps": 3000}}, records("gaze@s0", [0, 1]))
+    same = {"out": "same", "train": {"steps": 3000, "photometric": zeros}}
+    new = write_run(tmp_path, "same", same, records("gaze@s0", [1, 1]))
+    assert compare_runs(old, new)["differences"] == {}
+    assert compare_runs(new, old)["differences"] == {}
+    jitter = {"out": "jit", "train": {"steps": 3000, "photometric": {**zeros, "brightness": 0.2}}}
+    jit = write_run(tmp_path, "jit", jitter, records("gaze@s0", [1, 1]))
+    assert compare_runs(old, jit)["differences"] == {"train.photometric.brightness": [0.0, 0.2]}
+
+
 def test_compare_a_folder_that_is_no_finished_run_says_so_in_one_line(tmp_path, capsys):
     run = tmp_path / "unfinished"
     run.mkdir()

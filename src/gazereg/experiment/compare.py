@@ -12,8 +12,11 @@ import argparse
 from pathlib import Path
 from typing import Any, NoReturn
 
+from gazereg.experiment.config import ExperimentConfig
 from gazereg.experiment.finished import read_run
+from gazereg.experiment.records import with_added_keys
 from gazereg.report.compare import compare_markdown, comparison
+from gazereg.runtime.config import to_dict
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_json, atomic_write_text
 
@@ -21,12 +24,15 @@ from gazereg.runtime.io import atomic_write_json, atomic_write_text
 def compare_runs(run_a: str | Path, run_b: str | Path) -> dict[str, Any]:
     """The comparison of run B against run A (`gazereg.report.compare.comparison`), each read with
     `read_run`. UsageError, one line, for a folder that is not a finished experiment or its archive, and for
-    two runs that share no evaluated episode."""
+    two runs that share no evaluated episode. A key one run's saved config has and the other's lacks (added
+    to the configuration after the older run was made) takes its default in the older one, the behaviour it
+    had then (`with_added_keys`), so "What differs" names only the settings that really differ."""
     a, b = read_run(run_a), read_run(run_b)
+    default = to_dict(ExperimentConfig())
     try:
         return comparison(
             (str(run_a), str(run_b)),
-            (a.config, b.config),
+            (with_added_keys(a.config, default, b.config), with_added_keys(b.config, default, a.config)),
             (a.episodes(), b.episodes()),
             (a.report, b.report),
         )
