@@ -148,6 +148,35 @@ def test_a_setup_is_the_same_scene_whatever_ran_before():
         e.close()
 
 
+def test_a_setup_from_sampled_from_on_is_a_sampled_placement_of_its_own():
+    """Setup seeds from SAMPLED_FROM on are placements LIBERO's initializer samples, seeded by the setup: the
+    same scene at every reset whatever the caller's generator holds, another for the next setup, and none of
+    the task's fixed states (below SAMPLED_FROM a seed wraps onto them)."""
+    from gazereg.envs.libero.env import LiberoEnv
+    from gazereg.envs.libero.setup import SAMPLED_FROM, fixed_states, init_states, setup_index
+
+    assert setup_index("libero_spatial", 4, SAMPLED_FROM - 1) == (4, (SAMPLED_FROM - 1) % 50)
+    assert setup_index("libero_spatial", None, SAMPLED_FROM + 3) == (3, SAMPLED_FROM // 10)
+    e = LiberoEnv("libero_spatial/4", cameras=(), settle_steps=0)
+    try:
+        assert fixed_states("libero_spatial", 4) == 50
+        qpos = []
+        for seed, caller_seed in ((SAMPLED_FROM, 1), (SAMPLED_FROM, 2), (SAMPLED_FROM + 1, 1)):
+            np.random.seed(caller_seed)
+            before = np.random.get_state()[1].copy()
+            _, info = e.reset(seed=seed)
+            assert np.array_equal(np.random.get_state()[1], before)
+            assert info["init_state_index"] == seed
+            qpos.append(e.physics_data.qpos.copy())
+        np.testing.assert_array_equal(qpos[0], qpos[1])
+        assert not np.array_equal(qpos[0], qpos[2])
+        nq = qpos[0].shape[0]
+        fixed = init_states("libero_spatial", 4)[:, 1 : 1 + nq]  # a state is (time, qpos, qvel)
+        assert np.abs(fixed - qpos[0]).max(axis=1).min() > 1e-3
+    finally:
+        e.close()
+
+
 @pytest.mark.parametrize("suite", ["libero_object", "libero_goal", "libero_10"])
 def test_every_suite_resets_and_steps(suite):
     from gazereg.envs.libero.env import LiberoEnv

@@ -7,7 +7,7 @@
 
 `--env libero` (in the LIBERO venv, scripts/libero_env.sh) takes LIBERO tasks (`libero_spatial` for all 10
 tasks of the suite, `libero_spatial/3`, `libero_spatial/<task name>`) and rolls out
-`gazereg.envs.libero.expert.SpatialExpert` on their fixed initial states (seed s = initial state s % 50); its
+`gazereg.envs.libero.expert.SpatialExpert` on their fixed initial states (seed s = initial state s % 50 below 10,000); its
 episodes carry the same extras, cameras named as `gazereg import hdf5` names LIBERO's (agentview_rgb,
 eye_in_hand_rgb), LIBERO's 8-d state and 7-d action, and the LIBERO task name as task (see
 `gazereg.envs.libero.expert`). Nothing here imports LIBERO unless --env libero. `gazereg eval --env libero` maps

@@ -5,7 +5,8 @@
 
 `--env libero --tasks libero_spatial` evaluates in LIBERO instead (run it with the LIBERO venv's Python:
 `bash scripts/libero_env.sh gazereg eval ...`). A LIBERO setup seed is a fixed initial state (`s % 50` for
-one task), so the default seed_start (1000) is initial state 0, where demonstrations start too:
+one task; from 10,000 on a sampled placement instead: `gazereg.envs.libero.setup.setup_index`), so the default
+seed_start (1000) is initial state 0, where demonstrations start too:
 `--preset libero-spatial-25` evaluates LIBERO-Spatial task by task on initial states 25..49 instead. Every checkpoint ("arm") is rolled out on the same list of setup seeds per task and under every condition
 (a perturbation spec, `gazereg.envs.perturbations`), so arms form pairs seed by seed. Evaluation seeds start at
 `seed_start` (default 1000, i.e. Meta-World benchmark seed 20's setups), away from the setups demonstrations

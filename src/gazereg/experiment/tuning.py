@@ -80,11 +80,12 @@ def check_candidate(run: FinishedRun, command: Sequence[str]) -> None:
     )
 
 
-def validation_successes(episodes: list[Record]) -> Validation:
-    """{task: {training seed: [successes, episodes]}} of the clean ones of an experiment's evaluation records."""
+def validation_successes(episodes: list[Record], conditions: Sequence[str] = ("clean",)) -> Validation:
+    """{task: {training seed: [successes, episodes]}} of those of an experiment's evaluation records under
+    `conditions` (the clean ones by default), pooled over them."""
     out: Validation = {}
     for ep in episodes:
-        if ep["condition"] != "clean":
+        if ep["condition"] not in conditions:
             continue
         seed = str(RunId.parse(ep["arm"]).seed)
         cell = out.setdefault(ep["task"], {}).setdefault(seed, [0, 0])

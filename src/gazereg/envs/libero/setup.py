@@ -147,11 +147,18 @@ def init_states(suite: str, index: int) -> np.ndarray:
         return np.asarray(suite_benchmark(suite).get_task_init_states(index))
 
 
+SAMPLED_FROM = 10_000
+"""setup seeds from here on are placements sampled by LIBERO's own initializer, not fixed initial states"""
+
+
 def setup_index(suite: str, task: int | None, seed: int) -> tuple[int, int]:
-    """Setup seed -> (task index in `suite`, initial-state index among the task's fixed ones), for an env
-    over one task (`task`: its index) or the whole suite (`task` None): `LiberoEnv.setup_of`. One task's seed
-    `s` is its initial state `s mod n` (n: the task's fixed initial states); a suite's is task `s mod tasks`
-    at initial state `(s div tasks) mod n`."""
+    """Setup seed -> (task index in `suite`, initial-state index), for an env over one task (`task`: its
+    index) or the whole suite (`task` None): `LiberoEnv.setup_of`. One task's seed `s` is its initial state
+    `s`; a suite's is task `s mod tasks` at initial state `s div tasks`. Below `SAMPLED_FROM` the index is
+    taken modulo the task's fixed initial states (`fixed_states`, 50 in every suite: LIBERO's `.pruned_init`
+    file), so it is one of them; from `SAMPLED_FROM` on it is kept, past them: a placement sampled by LIBERO's
+    own placement initializer, seeded by the setup (`placement_rng`), neither a training nor an evaluation
+    state (the range tuning validates on)."""
     if seed < 0:
         raise ValueError(f"setup seeds are >= 0, got {seed}")
     if task is not None:
@@ -159,7 +166,13 @@ def setup_index(suite: str, task: int | None, seed: int) -> tuple[int, int]:
     else:
         n = len(suite_benchmark(suite).get_task_names())
         t, k = seed % n, seed // n
-    return t, k % len(init_states(suite, t))
+    return t, (k if seed >= SAMPLED_FROM else k % fixed_states(suite, t))
+
+
+def fixed_states(suite: str, task: int) -> int:
+    """How many fixed initial states task `task` of `suite` has: initial states below it are those, the ones
+    at or past it sampled placements (`setup_index`)."""
+    return len(init_states(suite, task))
 
 
 def resolve_task(task: str) -> tuple[str, int | None]:

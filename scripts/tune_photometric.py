@@ -1,0 +1,181 @@
+"""Choose the photometric augmentation of the LIBERO-Spatial training recipe on validation placements that are
+neither training nor evaluation states (issue 37 item 3: does the gaze arm's dim-light collapse survive a
+recipe that has seen darker frames?), for the baseline first, gaze blind.
+
+    bash scripts/libero_env.sh python scripts/tune_photometric.py               # every candidate not yet run
+    bash scripts/libero_env.sh python scripts/tune_photometric.py --only p0.25  # one (run or resumed)
+    .venv/bin/python scripts/tune_photometric.py --table                        # only docs/tuning/photometric.md
+
+Protocol (fixed on 2026-11-27, before any candidate ran):
+- Shared command: `gazereg experiment --preset libero --arms baseline` (LIBERO-Spatial's 10 tasks, the preset's
+  demonstrations on initial states 0..24 and its 6,000 steps of batch 32; `--threads-per-run 2`, an execution
+  key, so that the one arm uses both cores), validated on setup seeds 10,000..10,009 of each task
+  (`--eval.seed-start 10000 --eval.episodes 10`): placements LIBERO's initializer samples, none of the fixed
+  initial states (`gazereg.envs.libero.setup.SAMPLED_FROM`); clean on all 10, dim light (`dim:0.7`) and sensor
+  noise (`gaussian_noise:0.5`) on the first 5 (`--eval.robustness-episodes 5`): 200 episodes a candidate.
+- Candidates: `p0` (the preset, no augmentation), `p0.25` and `p0.5` (brightness, contrast and saturation
+  jitter of that strength: each factor drawn per frame from [1 - s, 1 + s]; `gazereg.training.photometric`).
+- Choice: the most validation successes pooled over the three conditions, ties to the earlier (weaker)
+  candidate. The chosen flags then go into every arm's recipe (baseline, gaze, glc, uniform) of the
+  LIBERO-Spatial runs; the gaze term is not retuned here.
+Each finished candidate `runs/tune-photometric/<name>` is archived as docs/records/tune-photometric/<name>
+(`gazereg archive`, so its row recomputes from its episodes) and recorded in
+docs/tuning/photometric/<name>.json (its command, wall time and validation successes per condition, task and
+training seed); docs/tuning/photometric.md, the table of every candidate, is read from the archives.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import time
+from pathlib import Path
+
+from gazereg.envs.libero.setup import SAMPLED_FROM
+from gazereg.experiment.archive import archive
+from gazereg.experiment.finished import FinishedRun, read_run
+from gazereg.experiment.tuning import (
+    Candidate,
+    candidate_record,
+    check_candidate,
+    choose,
+    experiment_command,
+    markdown_table,
+    per_task_text,
+    rate_text,
+    run_experiment,
+    totals,
+    validation_successes,
+    write_record,
+)
+from gazereg.runtime.errors import UsageError
+from gazereg.runtime.io import atomic_write_text
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs" / "tuning"
+RECORDS = ROOT / "docs" / "records" / "tune-photometric"
+RUNS = "runs/tune-photometric"
+CONDITIONS = ("clean", "dim:0.7", "gaussian_noise:0.5")
+BASE = [
+    "--preset", "libero", "--arms", "baseline", "--threads-per-run", "2",
+    "--eval.seed-start", str(SAMPLED_FROM), "--eval.episodes", "10", "--eval.robustness-episodes", "5",
+]  # fmt: skip
+
+
+def _jitter(s: str) -> Candidate:
+    flags = [f"--train.photometric.{k}" for k in ("brightness", "contrast", "saturation")]
+    return Candidate(
+        f"p{s}", f"brightness, contrast and saturation jitter {s}", tuple(x for f in flags for x in (f, s))
+    )
+
+
+CANDIDATES = (Candidate("p0", "the preset: no augmentation"), _jitter("0.25"), _jitter("0.5"))
+
+
+def command(cand: Candidate) -> list[str]:
+    return experiment_command(BASE, cand.overrides, f"{RUNS}/{cand.name}")
+
+
+def archive_path(name: str) -> Path:
+    return RECORDS / name
+
+
+def result_path(name: str) -> Path:
+    return DOCS / "photometric" / f"{name}.json"
+
+
+def finished(cand: Candidate) -> FinishedRun | None:
+    """The candidate's archive (`read_run`), checked to be its command's run; None when it has none."""
+    if not archive_path(cand.name).exists():
+        return None
+    run = read_run(archive_path(cand.name))
+    check_candidate(run, command(cand))
+    return run
+
+
+def run_candidate(cand: Candidate) -> Path:
+    """Run (or resume) `cand`'s experiment in runs/tune-photometric/<name>, archive it and write its record
+    from the archive; returns the record's path."""
+    t0 = time.time()
+    run_experiment(command(cand), ROOT)
+    source = ROOT / RUNS / cand.name
+    check_candidate(read_run(source), command(cand))
+    run = read_run(archive(source, archive_path(cand.name)))
+    record = {"archive": f"docs/records/tune-photometric/{cand.name}"}
+    record |= candidate_record(run, cand.name, cand.change, list(cand.overrides), command(cand))
+    record["validation_by_condition"] = {c: validation_successes(run.episodes(), (c,)) for c in CONDITIONS}
+    record["wall_time_s_this_call"] = round(time.time() - t0, 1)
+    write_record(result_path(cand.name), record)
+    return result_path(cand.name)
+
+
+def table() -> str:
+    """docs/tuning/photometric.md: every candidate, recounted from its archive, in the protocol's order."""
+    lines = [
+        "# Photometric augmentation of the LIBERO-Spatial recipe, on validation placements",
+        "",
+        "Written by `python scripts/tune_photometric.py --table` (its docstring states the protocol, fixed on",
+        "2026-11-27 before any result); each row is one candidate's `gazereg experiment --preset libero --arms",
+        "baseline` run, validated on placements LIBERO samples for setup seeds 10,000..10,009 of each task (none",
+        "of the fixed initial states), recounted from its archive in docs/records/tune-photometric/ (its command",
+        "in docs/tuning/photometric/<candidate>.json).",
+        "",
+    ]
+    header = ("candidate", "change", *CONDITIONS, "all conditions", "clean per task")
+    rows, scores = [], {}
+    for cand in CANDIDATES:
+        run = finished(cand)
+        if run is None:
+            rows.append([cand.name, cand.change, "not run yet", *[""] * (len(CONDITIONS) + 1)])
+            continue
+        eps = run.episodes()
+        per = [rate_text(validation_successes(eps, (c,))) for c in CONDITIONS]
+        pooled = validation_successes(eps, CONDITIONS)
+        scores[cand.name] = totals(pooled)[0]
+        rows.append(
+            [cand.name, cand.change, *per, rate_text(pooled), per_task_text(validation_successes(eps))]
+        )
+    lines += markdown_table(header, rows)
+    lines += [
+        "",
+        "Chosen (the most validation successes over the three conditions, ties to the earlier):",
+        "",
+    ]
+    if len(scores) < len(CANDIDATES):
+        lines.append(
+            "- not yet: " + ", ".join(c.name for c in CANDIDATES if c.name not in scores) + " to run"
+        )
+    else:
+        best = next(c for c in CANDIDATES if c.name == choose(scores))
+        flags = shlex.join(best.overrides) or "the preset, no override"
+        lines.append(f"- **{best.name}**, {best.change}: `{flags}` in every arm's recipe")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--only", nargs="+", choices=[c.name for c in CANDIDATES], help="run (or resume) these")
+    p.add_argument("--table", action="store_true", help="only rewrite docs/tuning/photometric.md")
+    a = p.parse_args(argv)
+    try:
+        todo = (
+            []
+            if a.table
+            else [c for c in CANDIDATES if (c.name in a.only if a.only else finished(c) is None)]
+        )
+        for cand in todo:
+            print(f"candidate {cand.name}: {shlex.join(command(cand))}", flush=True)
+            run_candidate(cand)
+            atomic_write_text(DOCS / "photometric.md", table())
+        DOCS.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(DOCS / "photometric.md", table())
+    except UsageError as e:
+        print(f"{Path(__file__).name}: error: {e}", file=sys.stderr)
+        return 2
+    print(table())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

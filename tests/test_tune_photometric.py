@@ -1,0 +1,129 @@
+"""scripts/tune_photometric.py: the LIBERO photometric-augmentation protocol's commands, choice and table,
+on archives made here (no LIBERO needed)."""
+
+import gzip
+import importlib.util
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import pytest
+
+from gazereg.envs.libero.setup import SAMPLED_FROM
+from gazereg.experiment.tuning import built_config
+from gazereg.runtime.config import config_diff, to_dict
+from gazereg.runtime.errors import UsageError
+
+ROOT = Path(__file__).resolve().parents[1]
+TASKS = [f"libero_spatial/{i}" for i in range(10)]
+
+
+def load(name="tune_photometric"):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / "tune_photometric.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture
+def tune(tmp_path, monkeypatch):
+    module = load()
+    monkeypatch.setattr(module, "ROOT", tmp_path)
+    monkeypatch.setattr(module, "DOCS", tmp_path / "docs" / "tuning")
+    monkeypatch.setattr(module, "RECORDS", tmp_path / "docs" / "records" / "tune-photometric")
+    return module
+
+
+def candidate(tune, name):
+    return next(c for c in tune.CANDIDATES if c.name == name)
+
+
+def fake_archive(tune, name, successes, dest=None, command=None):
+    """An archive of candidate `name` (its command's configuration unless `command`) whose validation
+    episodes succeed `successes[condition]` times, over the tasks in order (10 clean setups per task, 5 under
+    each perturbation)."""
+    dest = tune.archive_path(name) if dest is None else dest
+    shutil.copytree(ROOT / "docs" / "records" / "paper-abl-b", dest)
+    cfg = built_config(tuple(command or tune.command(candidate(tune, name))))
+    (dest / "config.json").write_text(json.dumps(to_dict(cfg), indent=2, sort_keys=True))
+    episodes = []
+    for cond, k in successes.items():
+        per = 10 if cond == "clean" else 5
+        episodes += [
+            {"arm": "baseline@s0", "task": task, "condition": cond, "seed": SAMPLED_FROM + i, "length": 9,
+             "success": per * t + i < k}
+            for t, task in enumerate(TASKS) for i in range(per)
+        ]  # fmt: skip
+    path = dest / "eval" / "eval_info.json.gz"
+    path.write_bytes(gzip.compress(json.dumps({"episodes": episodes}).encode()))
+    return dest
+
+
+def test_the_candidates_differ_only_by_the_jitter_and_validate_on_sampled_placements(tune):
+    configs = {c.name: to_dict(built_config(tuple(tune.command(c)))) for c in tune.CANDIDATES}
+    for name, cfg in configs.items():
+        assert cfg["env"] == "libero" and cfg["arms"] == ["baseline"] and cfg["demos_per_task"] == 25
+        assert (
+            cfg["eval"]["seed_start"] == SAMPLED_FROM
+        )  # no fixed initial state: neither training nor evaluation
+        assert cfg["eval"]["conditions"] == list(tune.CONDITIONS)
+        jitter = (
+            {}
+            if name == "p0"
+            else {k: [0.0, float(name[1:])] for k in ("brightness", "contrast", "saturation")}
+        )
+        assert config_diff(configs["p0"], cfg, ignore=("out",)) == {
+            f"train.photometric.{k}": v for k, v in jitter.items()
+        }
+
+
+def test_the_choice_pools_the_conditions_ties_to_the_weaker(tune):
+    fake_archive(tune, "p0", {"clean": 60, "dim:0.7": 10, "gaussian_noise:0.5": 30})
+    fake_archive(tune, "p0.25", {"clean": 55, "dim:0.7": 30, "gaussian_noise:0.5": 30})
+    text = tune.table()
+    assert "- not yet: p0.5 to run" in text
+    assert (
+        "| p0 | the preset: no augmentation | 60/100 = 0.60 | 10/50 = 0.20 | 30/50 = 0.60 | 100/200 = 0.50 |"
+        in text
+    )
+    fake_archive(tune, "p0.5", {"clean": 45, "dim:0.7": 40, "gaussian_noise:0.5": 30})  # 115 ties p0.25
+    text = tune.table()
+    assert "- **p0.25**, brightness, contrast and saturation jitter 0.25: `--train.photometric.brightness 0.25 " \
+        "--train.photometric.contrast 0.25 --train.photometric.saturation 0.25` in every arm's recipe" in text  # fmt: skip
+
+
+def test_an_archive_of_another_command_is_refused(tune):
+    fake_archive(tune, "p0.5", {"clean": 1}, command=tune.command(candidate(tune, "p0")))
+    with pytest.raises(UsageError, match=r"tune-photometric/p0\.5 holds a run with another configuration"):
+        tune.table()
+
+
+def test_a_candidate_is_run_archived_and_recorded(tune, monkeypatch):
+    ran = []
+
+    def fake_run(command, root):
+        ran.append(command)
+        fake_archive(
+            tune,
+            "p0",
+            {"clean": 70, "dim:0.7": 20, "gaussian_noise:0.5": 10},
+            dest=root / "runs" / "tune-photometric" / "p0",
+        )
+
+    monkeypatch.setattr(tune, "run_experiment", fake_run)
+    assert tune.main(["--only", "p0"]) == 0
+    assert ran == [tune.command(candidate(tune, "p0"))]
+    record = json.loads(tune.result_path("p0").read_text())
+    assert record["command"].endswith("--out runs/tune-photometric/p0")
+    by_cond = record["validation_by_condition"]
+    assert sum(c[0] for seeds in by_cond["dim:0.7"].values() for c in seeds.values()) == 20
+    assert (
+        "| 70/100 = 0.70 | 20/50 = 0.40 | 10/50 = 0.20 | 100/200 = 0.50 |"
+        in (tune.DOCS / "photometric.md").read_text()
+    )
+
+
+def test_the_committed_table_is_the_archives():
+    assert load("tune_photometric_real").table() == (ROOT / "docs" / "tuning" / "photometric.md").read_text()
