@@ -4,13 +4,16 @@
     bash scripts/libero_env.sh python benchmarks/bench_libero.py --expert-inits 5 [--expert-noise 0.1]
     bash scripts/libero_env.sh python benchmarks/bench_libero.py --suite libero_object --expert-inits 20 \
         --out docs/benchmarks/libero_object_expert.json
+    bash scripts/libero_env.sh python benchmarks/bench_libero.py --suite libero_goal --expert-inits 10 \
+        --expert-max-steps 300 --out docs/benchmarks/libero_goal_expert.json
 
 Needs the LIBERO venv (scripts/libero_env.sh); elsewhere prints {"skipped": "..."} and exits 0. Times zero
 actions (arm still) on one task, excluding build and reset, plus physics-only steps (no cameras) for
 comparison, with the render copy's simplified meshes (LiberoEnv's default) and with the full meshes, and the
 time of a reset. `--expert-inits N` instead rolls the suite's scripted expert (`make_expert`: SpatialExpert,
-ObjectExpert) out on initial states 0..N-1 of every task of `--suite` (physics only, no cameras: the expert
-reads object poses) and reports successes, failed initial states, episode lengths and wall time per task.
+ObjectExpert, GoalExpert) out on initial states 0..N-1 of every task of `--suite` (physics only, no cameras:
+the expert reads object poses) and reports successes, failed initial states, episode lengths and wall time per
+task.
 Prints one JSON object; `--out PATH` also writes it there (atomically), with the machine line.
 `--markdown JSON` measures nothing: it prints an expert JSON's table for docs (no LIBERO needed).
 """
@@ -144,9 +147,10 @@ def expert_markdown(result: dict, source: str) -> str:
     ]
     for r in sorted(result["tasks"].values(), key=lambda r: int(r["task"].rsplit("/", 1)[1])):
         failed = ", ".join(map(str, r["failed_init_states"])) or "none"
+        mean = "-" if r["mean_length"] is None else f"{r['mean_length']:.0f}"  # no success: no length
+        longest = "-" if r["max_length"] is None else r["max_length"]
         lines.append(
-            f"| {r['task']} | {r['instruction']} | {r['successes']}/{r['n']} | {r['mean_length']:.0f} | "
-            f"{r['max_length']} | {failed} |"
+            f"| {r['task']} | {r['instruction']} | {r['successes']}/{r['n']} | {mean} | {longest} | {failed} |"
         )
     return "\n".join(lines)
 

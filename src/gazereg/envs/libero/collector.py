@@ -4,12 +4,16 @@
     make_expert("libero_object", noise=0.1)             # the suite's expert (EXPERTS)
 
 Experts: LIBERO-Spatial `SpatialExpert` (a bowl onto the plate), LIBERO-Object `ObjectExpert` (an item into the
-basket); LIBERO-Goal and LIBERO-10 have none yet.
+basket), LIBERO-Goal `GoalExpert` (a plan per goal predicate: open a drawer, turn a knob, push, place;
+`gazereg.envs.libero.expert_goal`); LIBERO-10 has none yet.
 
 The episode's task is LIBERO's task name (as `gazereg import hdf5` names LIBERO's demonstrations); its meta:
 seed, setup (suite, task index, initial state), success, fps, env, env_name, steps, expert, the expert's grasp,
-action_noise, the task's roles, camera geometry (MuJoCo's, with `mirror_u`: the stored images are its view
-mirrored left-right), state and action layouts, package versions. Importing this module does not import LIBERO.
+action_noise, the task's roles, the expert's gaze targets when it names them (`gaze_targets`: GoalExpert's,
+e.g. ["handle"] for a drawer; their `<name>_pos`, `<name>_uv.<camera>` and `contact.<name>` extras come with
+them, for the visuomotor gaze source), camera geometry (MuJoCo's, with `mirror_u`: the stored images are its
+view mirrored left-right), state and action layouts, package versions. Importing this module does not import
+LIBERO.
 """
 
 from __future__ import annotations
@@ -22,13 +26,18 @@ import numpy as np
 from gazereg.data.store import Episode
 from gazereg.envs.libero.env import ACTION_LAYOUT, STATE_LAYOUT, LiberoEnv
 from gazereg.envs.libero.expert import PickPlaceExpert, SpatialExpert
+from gazereg.envs.libero.expert_goal import GoalExpert
 from gazereg.envs.libero.expert_object import ObjectExpert
 from gazereg.envs.libero.setup import import_libero, libero_available, resolve_task, suite_benchmark
 from gazereg.envs.perturbations import parse_perturbation
 from gazereg.envs.recording import noise_seed, record_rollout, summary_of, versions
 
 # The scripted expert of each suite that has one.
-EXPERTS: dict[str, type[PickPlaceExpert]] = {"libero_spatial": SpatialExpert, "libero_object": ObjectExpert}
+EXPERTS: dict[str, type[PickPlaceExpert]] = {
+    "libero_spatial": SpatialExpert,
+    "libero_object": ObjectExpert,
+    "libero_goal": GoalExpert,
+}
 
 
 def make_expert(suite: str, noise: float = 0.0) -> PickPlaceExpert:
@@ -50,15 +59,27 @@ def rollout_libero_expert(
     Returns the Episode (also when it failed: meta["success"] says) and the summary `gazereg collect` logs."""
     expert = expert or make_expert(env.suite, action_noise)
     started = False
+    # The expert's own gaze parts (GoalExpert: a drawer's handle, a knob), per frame: position (3,), touched,
+    # camera -> uv (2,).
+    parts: dict[str, list[tuple[np.ndarray, bool, dict[str, np.ndarray]]]] = {}
 
     def act(obs: dict[str, Any], info: dict[str, Any]) -> np.ndarray:
         nonlocal started
         if not started:  # the env has just been reset by record_rollout
             expert.reset(env, noise_seed(env.task, seed))
             started = True
+        if hasattr(expert, "gaze_points"):  # the state of frame t, before its action
+            for name, (pos, touched) in expert.gaze_points(env).items():
+                uv = {c: env.project(pos, c) for c in env.cameras}  # now: the wrist camera moves
+                parts.setdefault(name, []).append((pos, touched, uv))
         return expert(env)
 
     rec = record_rollout(env, act, seed, max_steps or env.max_steps)
+    for name, seq in parts.items():  # as record_rollout's key points: <name>_pos, <name>_uv.<camera>
+        rec.extras[f"{name}_pos"] = np.asarray([p for p, _, _ in seq], dtype=np.float32)
+        rec.extras[f"contact.{name}"] = np.asarray([t for _, t, _ in seq], dtype=bool)
+        for c in env.cameras:
+            rec.extras[f"{name}_uv.{c}"] = np.asarray([uv[c] for _, _, uv in seq], dtype=np.float32)
     t, k = env.setup_of(seed)
     meta = {
         "seed": int(seed),
@@ -72,6 +93,7 @@ def rollout_libero_expert(
         "expert_grasp": dict(expert.grasp_choice),
         "action_noise": float(action_noise),
         "roles": {"obj": env.roles.obj, "goal": env.roles.goal, "relation": env.roles.relation},
+        **({"gaze_targets": list(expert.gaze_targets)} if hasattr(expert, "gaze_targets") else {}),
         # MuJoCo's geometry of each camera; the stored images are its view mirrored left-right (LIBERO's turn).
         "camera_geometry": {c: {**env.camera_geometry(c).to_dict(), "mirror_u": True} for c in env.cameras},
         "state_layout": list(STATE_LAYOUT),
@@ -85,10 +107,11 @@ class LiberoCollector:
     """`gazereg collect --env libero`: the tasks of the suites with a scripted expert (EXPERTS), each rolled out
     by its suite's.
 
-    Tasks: a suite (`libero_spatial`, `libero_object`: its 10 tasks), `libero_object/3`,
+    Tasks: a suite (`libero_spatial`, `libero_object`, `libero_goal`: its 10 tasks), `libero_object/3`,
     `libero_object/<task name>`; canonical form `<suite>/<index>`. Seed s is the task's fixed initial state
     s % 50. Episodes are `default_max_steps` long unless `--max_steps` says otherwise (LIBERO-Spatial's
-    evaluation length; the experts finish LIBERO-Object's tasks within it too: docs/benchmarks/)."""
+    evaluation length; the experts finish LIBERO-Object's tasks within it too; LIBERO-Goal's need up to its 300:
+    docs/benchmarks/)."""
 
     name = "libero"
     default_cameras = ("agentview_rgb", "eye_in_hand_rgb")  # the names `gazereg import hdf5` gives them
@@ -108,7 +131,7 @@ class LiberoCollector:
             if suite not in self.suites:
                 raise ValueError(
                     f"{spec!r}: the scripted LIBERO experts cover {', '.join(self.suites)} only "
-                    "(a bowl onto the plate, an item into the basket)"
+                    "(a bowl onto the plate, an item into the basket, LIBERO-Goal's kitchen)"
                 )
             n = len(suite_benchmark(suite).get_task_names())
             out += [f"{suite}/{i}" for i in (range(n) if index is None else [index])]
