@@ -1,16 +1,20 @@
-"""LIBERO-Object's expert table in docs/libero.md is what `bench_libero.py --markdown` renders from the committed
-JSON (its numbers come from the measurement, not typed); the markdown mode needs no LIBERO."""
+"""The LIBERO-Object and LIBERO-Goal expert tables in docs/libero.md are what `bench_libero.py --markdown`
+renders from the committed JSON (their numbers come from the measurement, not typed); the markdown mode needs
+no LIBERO."""
 
 from __future__ import annotations
 
+import pytest
 from docs_blocks import ROOT, markdown
 
 
-def test_the_expert_block_is_rendered_from_the_committed_json(script):
-    out = markdown("bench_libero.py", ROOT / "docs" / "benchmarks" / "libero_object_expert.json")
+@pytest.mark.parametrize("suite", ["libero_object", "libero_goal"])
+def test_the_expert_block_is_rendered_from_the_committed_json(script, suite):
+    out = markdown("bench_libero.py", ROOT / "docs" / "benchmarks" / f"{suite}_expert.json")
     assert out.returncode == 0, out.stderr
-    assert script.read_block(ROOT / "docs" / "libero.md", "libero-object-expert") == out.stdout
-    assert out.stdout.count("| libero_object/") == 10
+    marker = f"{suite.replace('_', '-')}-expert"
+    assert script.read_block(ROOT / "docs" / "libero.md", marker) == out.stdout
+    assert out.stdout.count(f"| {suite}/") == 10
 
 
 def test_markdown_of_a_missing_file_is_one_line_and_exit_2(tmp_path):

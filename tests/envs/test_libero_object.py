@@ -98,9 +98,9 @@ def test_each_suite_gets_its_expert_and_others_are_refused():
     assert isinstance(make_expert("libero_object", 0.1), ObjectExpert)
     assert type(make_expert("libero_spatial")) is SpatialExpert
     assert make_expert("libero_object", 0.1).noise == 0.1
-    assert LiberoCollector.suites == tuple(EXPERTS) == ("libero_spatial", "libero_object")
-    with pytest.raises(ValueError, match="no scripted LIBERO expert for 'libero_goal'"):
-        make_expert("libero_goal")
+    assert LiberoCollector.suites == tuple(EXPERTS) == ("libero_spatial", "libero_object", "libero_goal")
+    with pytest.raises(ValueError, match="no scripted LIBERO expert for 'libero_10'"):
+        make_expert("libero_10")
     with pytest.raises(ValueError, match="puts an object 'in' another"):
         ObjectExpert().reset(
             SimpleNamespace(roles=TaskRoles("a_1", "plate_1", "on"), task="libero_spatial/0")

@@ -11,7 +11,8 @@ goal = Y, an object, a fixture or a region (site) such as `basket_1_contain_regi
 always `(On <black bowl> plate_1)` (the bowl is also its `obj_of_interest`), so obj is the bowl and goal the
 plate. Where the goal has no such predicate (libero_goal's `(Open wooden_cabinet_1_middle_region)`,
 `(Turnon flat_stove_1)`), obj is the first of the BDDL's `obj_of_interest` and there is no goal: `key_points`
-has no "goal" entry (the visuomotor gaze source then needs `targets=("obj",)`). Tasks with two placements
+has no "goal" entry (the visuomotor gaze source then follows the parts the expert names instead, when its
+episodes carry `gaze_targets`, as `GoalExpert`'s do: the handle, the knob). Tasks with two placements
 (libero_10's `(And (On a b) (On c d))`) use the first one only.
 
 Positions. An object's or fixture's position is its root body's origin (LIBERO's own `body_xpos`, the point its
