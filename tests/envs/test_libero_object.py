@@ -16,7 +16,6 @@ from gazereg.envs.libero.expert_object import YAWS, ItemShape, ObjectExpert, Obj
 from gazereg.envs.libero.scene import Boxes, TaskRoles
 from gazereg.evaluation.config import presets as eval_presets
 from gazereg.experiment.config import PRESETS
-from gazereg.experiment.config_sims import libero_object
 from gazereg.experiment.demos import demo_collections
 from gazereg.experiment.runner import Experiment
 
@@ -107,13 +106,16 @@ def test_each_suite_gets_its_expert_and_others_are_refused():
         )
 
 
-def test_the_libero_object_presets():
-    ev = eval_presets()["libero-object-25"]()
-    assert ev.tasks == tuple(f"libero_object/{k}" for k in range(10))
-    assert (ev.env, ev.seed_start, ev.episodes, ev.max_steps) == ("libero", 25, 25, 280)
-    cfg = libero_object()
-    assert PRESETS["libero_object"]().tasks == cfg.tasks == ev.tasks and cfg.eval.max_steps == 280
-    assert cfg.out == Path("runs/libero_object") and cfg.demo_max_failures == 0
+@pytest.mark.parametrize(("suite", "steps"), [("libero_object", 280), ("libero_goal", 300)])
+def test_the_libero_suite_presets(suite, steps):
+    """`libero_object` and `libero_goal`: LIBERO-Spatial's experiment over the suite's tasks, its evaluation
+    length, a folder of its own; demonstrations never on an evaluation setup."""
+    ev = eval_presets()[f"{suite.replace('_', '-')}-25"]()
+    assert ev.tasks == tuple(f"{suite}/{k}" for k in range(10))
+    assert (ev.env, ev.seed_start, ev.episodes, ev.max_steps) == ("libero", 25, 25, steps)
+    cfg = PRESETS[suite]()
+    assert cfg.tasks == ev.tasks and cfg.eval.max_steps == cfg.demo_max_steps == steps
+    assert cfg.out == Path(f"runs/{suite}") and cfg.demo_max_failures == 0
     # the same experiment as LIBERO-Spatial's but for the suite (tasks, evaluation length, folder)
     spatial = PRESETS["libero"]()
     assert cfg.arms == spatial.arms and cfg.train == spatial.train and cfg.glc_folds[1] == ev.tasks[5:]

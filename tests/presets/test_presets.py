@@ -56,8 +56,8 @@ def two_cores(monkeypatch):
 
 
 ADDED_SINCE = {
-    "experiment": {"aloha", "ml45_finetune", "ml45_scratch", "libero_object"},
-    "evaluation budget": {"aloha-50", "libero-object-25"},
+    "experiment": {"aloha", "ml45_finetune", "ml45_scratch", "libero_object", "libero_goal"},
+    "evaluation budget": {"aloha-50", "libero-object-25", "libero-goal-25"},
 }
 """presets added after the snapshot (nothing to compare them with)"""
 
@@ -119,7 +119,7 @@ def test_gazereg_presets_lists_every_preset_with_one_line(capsys):
         (
             "eval",
             "paper",
-            "['aloha-50', 'clean-10', 'clean-dim-2', 'clean-dim-noise-10', 'libero-object-25', "
+            "['aloha-50', 'clean-10', 'clean-dim-2', 'clean-dim-noise-10', 'libero-goal-25', 'libero-object-25', "
             "'libero-spatial-25', 'robustness-50']",
         ),
         ("collect", "smoke", "['demos-10x50', 'demos-2x2', 'demos-3x30']"),

@@ -147,6 +147,12 @@ def libero_object_25() -> EvalConfig:
     return libero_suite_25("libero_object", 280)
 
 
+def libero_goal_25() -> EvalConfig:
+    """LIBERO-Goal task by task on initial states 25..49 (300 steps, the standard evaluations' length, clean),
+    leaving 0..24 to `gazereg collect --env libero`; one worker per core."""
+    return libero_suite_25("libero_goal", 300)
+
+
 ALOHA_TASKS = ("AlohaTransferCube-v0", "AlohaInsertion-v0")
 """Gym-Aloha's two tasks, as LeRobot's `aloha` env names them (`gazereg.envs.aloha.setup.TASKS`)"""
 
@@ -182,6 +188,7 @@ def presets() -> dict[str, Callable[[], EvalConfig]]:
         "clean-dim-noise-10": clean_dim_noise_10,
         "libero-spatial-25": libero_spatial_25,
         "libero-object-25": libero_object_25,
+        "libero-goal-25": libero_goal_25,
         "aloha-50": aloha_50,
         "robustness-50": robustness_50,
     }

@@ -1,5 +1,5 @@
 """The experiment presets of the simulators other than Meta-World: LIBERO-Spatial (`libero`, its toy-size
-`libero_smoke`), LIBERO-Object (`libero_object`) and Gym-Aloha (`aloha`). Each runs in its simulator's lane
+`libero_smoke`), LIBERO-Object (`libero_object`), LIBERO-Goal (`libero_goal`) and Gym-Aloha (`aloha`). Each runs in its simulator's lane
 (scripts/libero_env.sh, scripts/aloha_lane.sh); they register in `gazereg.experiment.config.PRESETS` when this module is imported
 (the package's __init__ does), so `--preset NAME` finds them like the others.
 """
@@ -76,6 +76,14 @@ def libero_object() -> ExperimentConfig:
     return libero_suite("libero-object-25", Path("runs/libero_object"))
 
 
+def libero_goal() -> ExperimentConfig:
+    """LIBERO-Goal (`bash scripts/libero_env.sh gazereg experiment --preset libero_goal`): `libero_suite` over
+    its 10 tasks, one kitchen scene with ten goals (the evaluation budget `libero-goal-25`, 300 steps),
+    demonstrations by `GoalExpert` (its success per task, and the task it often fails:
+    docs/benchmarks/libero_goal_expert.json, docs/libero.md)."""
+    return libero_suite("libero-goal-25", Path("runs/libero_goal"))
+
+
 def libero_smoke() -> ExperimentConfig:
     """Every stage of the `libero` preset at toy size (the slow test tests/envs/test_libero_experiment.py, in
     the LIBERO venv): 2 tasks, 2 demonstrations each, 4 training steps, 2 evaluation episodes of 10 steps."""
@@ -142,5 +150,11 @@ def aloha() -> ExperimentConfig:
 
 
 PRESETS.update(
-    {"libero": libero, "libero_object": libero_object, "libero_smoke": libero_smoke, "aloha": aloha}
+    {
+        "libero": libero,
+        "libero_object": libero_object,
+        "libero_goal": libero_goal,
+        "libero_smoke": libero_smoke,
+        "aloha": aloha,
+    }
 )
