@@ -53,12 +53,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from gazereg.experiment.archive import archive
-from gazereg.experiment.finished import FinishedRun, read_run
+from gazereg.experiment.finished import FinishedRun
 from gazereg.experiment.tuning import (
     Candidate,
+    archived_run,
+    candidate_archive,
     candidate_record,
-    check_candidate,
     choose,
     experiment_command,
     markdown_table,
@@ -171,12 +171,8 @@ def result_path(name: str) -> Path:
 
 
 def read_archive(entry: Entry) -> FinishedRun | None:
-    """The candidate's archive (`read_run`), checked to be its command's run; None when it has none."""
-    if not archive_path(entry.candidate.name).exists():
-        return None
-    run = read_run(archive_path(entry.candidate.name))
-    check_candidate(run, entry.command)
-    return run
+    """The candidate's archive, checked to be its command's run; None when it has none."""
+    return candidate_archive(entry.command, archive_path(entry.candidate.name))
 
 
 def plan() -> list[tuple[Step, list[Entry], Entry | None]]:
@@ -250,9 +246,7 @@ def run_candidate(entry: Entry) -> Path:
     and write docs/tuning/finetune/<name>.json from the archive; returns the record's path."""
     name, t0 = entry.candidate.name, time.time()
     run_experiment(entry.command, ROOT)
-    source = ROOT / RUNS / name
-    check_candidate(read_run(source), entry.command)
-    run = read_run(archive(source, archive_path(name)))
+    run = archived_run(entry.command, ROOT, archive_path(name))
     record = {"step": entry.step.name, "archive": f"docs/records/tune-ft/{name}"}
     overrides = list(entry.overrides or ())
     record |= candidate_record(run, name, entry.candidate.change, overrides, entry.command)

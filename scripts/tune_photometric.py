@@ -33,12 +33,12 @@ import time
 from pathlib import Path
 
 from gazereg.envs.libero.setup import SAMPLED_FROM
-from gazereg.experiment.archive import archive
-from gazereg.experiment.finished import FinishedRun, read_run
+from gazereg.experiment.finished import FinishedRun
 from gazereg.experiment.tuning import (
     Candidate,
+    archived_run,
+    candidate_archive,
     candidate_record,
-    check_candidate,
     choose,
     experiment_command,
     markdown_table,
@@ -86,12 +86,8 @@ def result_path(name: str) -> Path:
 
 
 def finished(cand: Candidate) -> FinishedRun | None:
-    """The candidate's archive (`read_run`), checked to be its command's run; None when it has none."""
-    if not archive_path(cand.name).exists():
-        return None
-    run = read_run(archive_path(cand.name))
-    check_candidate(run, command(cand))
-    return run
+    """The candidate's archive, checked to be its command's run; None when it has none."""
+    return candidate_archive(command(cand), archive_path(cand.name))
 
 
 def run_candidate(cand: Candidate) -> Path:
@@ -99,9 +95,7 @@ def run_candidate(cand: Candidate) -> Path:
     from the archive; returns the record's path."""
     t0 = time.time()
     run_experiment(command(cand), ROOT)
-    source = ROOT / RUNS / cand.name
-    check_candidate(read_run(source), command(cand))
-    run = read_run(archive(source, archive_path(cand.name)))
+    run = archived_run(command(cand), ROOT, archive_path(cand.name))
     record = {"archive": f"docs/records/tune-photometric/{cand.name}"}
     record |= candidate_record(run, cand.name, cand.change, list(cand.overrides), command(cand))
     record["validation_by_condition"] = {c: validation_successes(run.episodes(), (c,)) for c in CONDITIONS}

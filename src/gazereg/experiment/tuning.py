@@ -1,17 +1,17 @@
-"""What the tuning scripts share (scripts/tune_baseline.py, scripts/tune_finetune.py): a candidate is one
-`gazereg experiment` run on validation setups (neither training nor evaluation setups), read back through the
-one reader `read_run` (its run folder or its archive), scored by its clean validation successes.
+"""What the tuning scripts share (scripts/tune_baseline.py, tune_finetune.py, tune_photometric.py): a candidate is
+one `gazereg experiment` run on validation setups (neither training nor evaluation setups), read back through
+the one reader `read_run` (its run folder or its archive), scored by its validation successes (clean, or pooled
+over the conditions a protocol names).
 
     cand = Candidate("lr1e-4", "learning rate 1e-4", ("--train.optim.lr", "1e-4"))
     cmd = experiment_command(BASE, cand.overrides, "runs/tune/lr1e-4")   # ["gazereg", "experiment", ...]
     run_experiment(cmd, root)                                           # run or resume it (stages resume)
-    run = read_run(root / "runs/tune/lr1e-4")
-    check_candidate(run, cmd)                                           # the run is that command's
+    run = archived_run(cmd, root, Path("docs/records/tune/lr1e-4"))     # checked, archived, read back
     val = validation_successes(run.episodes())                          # {task: {seed: [successes, n]}}
     write_record(path, candidate_record(run, cand.name, cand.change, list(cand.overrides), cmd))
     choose({"default": 37, "lr1e-4": 45})                               # "lr1e-4"
 
-The choice rule of both scripts (`choose`): the most validation successes, ties to the earlier candidate.
+The choice rule of every script (`choose`): the most validation successes, ties to the earlier candidate.
 """
 
 from __future__ import annotations
@@ -26,8 +26,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from gazereg.experiment.archive import archive
 from gazereg.experiment.config import EXECUTION_KEYS, PRESETS, ExperimentConfig
-from gazereg.experiment.finished import FinishedRun, Record
+from gazereg.experiment.finished import FinishedRun, Record, read_run
 from gazereg.experiment.records import with_added_keys
 from gazereg.report.ids import RunId
 from gazereg.runtime.config import check_same_config, parse, to_dict
@@ -78,6 +79,25 @@ def check_candidate(run: FinishedRun, command: Sequence[str]) -> None:
         run.path,
         f"it is not the candidate `{shlex.join(command)}`",
     )
+
+
+def archived_run(command: Sequence[str], root: Path, dest: Path) -> FinishedRun:
+    """The finished run of `command` (a `gazereg experiment` command line ending in `--out FOLDER`, relative to
+    `root`), checked to be that command's (`check_candidate`), archived to `dest` (`gazereg archive`) and read
+    back from the archive: what a candidate's row and record are made from."""
+    source = root / command[list(command).index("--out") + 1]
+    check_candidate(read_run(source), command)
+    return read_run(archive(source, dest))
+
+
+def candidate_archive(command: Sequence[str], dest: Path) -> FinishedRun | None:
+    """The archive `dest` of a candidate (`read_run`), checked to be the run of its command (`check_candidate`);
+    None when it has none yet."""
+    if not dest.exists():
+        return None
+    run = read_run(dest)
+    check_candidate(run, command)
+    return run
 
 
 def validation_successes(episodes: list[Record], conditions: Sequence[str] = ("clean",)) -> Validation:

@@ -96,7 +96,7 @@ from gazereg.envs.libero.expert import (
     yawed,
 )
 from gazereg.envs.libero.expert_object import YAWS, ItemShape, ObjectExpert, ObjectParams, closing_axes
-from gazereg.envs.libero.scene import Boxes
+from gazereg.envs.libero.scene import Boxes, subtree_mask
 
 KINDS = ("open", "turn_on", "place", "push", "open_place")
 # The Panda palm's footprint (half sizes along and across the closing axis) and its bottom above the pad centre
@@ -189,12 +189,7 @@ def body_boxes(env: Any, body: int) -> Boxes:
 
 def subtree_bodies(model: Any, root: int) -> np.ndarray:
     """Ids of body `root` and every body below it."""
-    parent = np.asarray(model.body_parentid)
-    inside = np.zeros(model.nbody, dtype=bool)
-    inside[root] = True
-    for b in range(root + 1, model.nbody):  # MuJoCo numbers a body after its parent
-        inside[b] = inside[parent[b]]
-    return np.flatnonzero(inside)
+    return np.flatnonzero(subtree_mask(model, root))
 
 
 def frame(approach: np.ndarray, closing: np.ndarray) -> np.ndarray:

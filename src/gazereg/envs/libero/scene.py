@@ -91,14 +91,19 @@ class Boxes:
         return np.linalg.norm(np.maximum(np.abs(local) - self.half[None], 0.0), axis=-1)
 
 
-def _subtree_geoms(model: Any, root: int) -> np.ndarray:
-    """Ids of every geom of body `root` and the bodies below it."""
+def subtree_mask(model: Any, root: int) -> np.ndarray:
+    """(nbody,) bool: body `root` and every body below it."""
     parent = np.asarray(model.body_parentid)
     inside = np.zeros(model.nbody, dtype=bool)
     inside[root] = True
     for b in range(root + 1, model.nbody):  # MuJoCo numbers a body after its parent
         inside[b] = inside[parent[b]]
-    return np.flatnonzero(inside[np.asarray(model.geom_bodyid)])
+    return inside
+
+
+def _subtree_geoms(model: Any, root: int) -> np.ndarray:
+    """Ids of every geom of body `root` and the bodies below it."""
+    return np.flatnonzero(subtree_mask(model, root)[np.asarray(model.geom_bodyid)])
 
 
 class SceneFacts:
