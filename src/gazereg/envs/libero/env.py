@@ -16,10 +16,8 @@ LIBERO needs its own venv (robosuite 1.4.0 with mujoco < 3.9; Meta-World pins mu
 Tasks and seeds. `task` is a suite (`libero_spatial`, `libero_object`, `libero_goal`, `libero_10`; 10 tasks
 each with 50 fixed initial states, LIBERO's `.pruned_init` files) or one task of a suite, `libero_spatial/3`
 (index) or `libero_spatial/<task name>`. For a suite, setup seed `s` is task `s % 10` with initial state
-`(s // 10) % 50`, so consecutive seeds cover every task; for one task, seed `s` is initial state `s % 50`. Setup
-seeds from `SAMPLED_FROM` (10,000) on are not fixed states but placements sampled by LIBERO's own placement
-initializer (the BDDL's regions), seeded by the setup: the same scene in every process, none of the fixed
-ones; the validation setups of tuning, neither training (states 0..24 in the presets) nor evaluation (25..49).
+`(s // 10) % 50`, so consecutive seeds cover every task; for one task, seed `s` is initial state `s % 50`; from
+10,000 on, a placement LIBERO's initializer samples, seeded by the setup (validation setups: `setup_index`).
 `reset(seed=s)` selects setup `s`; `reset()` without a seed takes the next one. Changing task rebuilds the
 robosuite environment (a few seconds). After the initial state is set, `settle_steps` (default 10) no-op
 actions (arm still, gripper open) let the objects settle, as the standard LIBERO evaluations do; they do
@@ -265,10 +263,8 @@ class LiberoEnv(gym.Env):
         self._init_index = k
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            fixed = k < fixed_states(self.suite, t)
-            # LIBERO samples some objects relative to where the fixtures stand when it does: a sampled
-            # placement resets twice from the same draws, so the second samples them from this setup's own.
-            for _ in range(1 if fixed else 2):
+            fixed = k < fixed_states(self.suite, t)  # else sampled: twice, as LIBERO places some objects
+            for _ in range(1 if fixed else 2):  # relative to the fixtures' last poses
                 with placement_rng(self.suite, t, k):
                     self._rs_obs = self._env.reset()
             clear_transients(self._env, self.physics_data)
