@@ -66,12 +66,7 @@ from gazereg.envs.libero.expert import (
 from gazereg.envs.libero.expert_object import YAWS, ItemShape, ObjectParams
 from gazereg.envs.libero.goal_placers import BowlPlacer, ItemPlacer
 from gazereg.envs.libero.goal_primitives import GoalPrimitives, Waypoint
-from gazereg.envs.libero.goal_scene import (
-    GoalShifted,
-    goal_predicates,
-    region_shift,
-    subtree_bodies,
-)
+from gazereg.envs.libero.goal_scene import GoalShifted, body_geoms, goal_predicates, region_shift
 
 KINDS = ("open", "turn_on", "place", "push", "open_place")
 
@@ -121,7 +116,6 @@ class GoalExpert(GoalPrimitives, PickPlaceExpert):
         self._placer: PickPlaceExpert | None = None
         self._parts: dict[str, Callable[[], tuple[np.ndarray, bool]]] = {}
         self.gaze_targets: tuple[str, ...] = ("obj", "goal")
-        self._grip_cache: np.ndarray | None = None  # the gripper's geom ids, of this task's model
 
     # ----- planning -------------------------------------------------------------------------------------
     def reset(self, env: Any, noise_seed: Any = 0) -> None:
@@ -136,7 +130,6 @@ class GoalExpert(GoalPrimitives, PickPlaceExpert):
         self._env = env
         self._waypoints, self._placer, self._parts = [], None, {}
         self._step, self._phase_steps, self._hold = 0, 0, None
-        self._grip_cache = None
         self.grasp_choice = {}
         preds = goal_predicates(env)
         if len(preds) != 1:
@@ -207,31 +200,8 @@ class GoalExpert(GoalPrimitives, PickPlaceExpert):
         self.grasp_choice = {**self.grasp_choice, **placer.grasp_choice}
 
     def _touches(self, env: Any, body: int) -> bool:
-        """A gripper geom touches a collision geom of MuJoCo body `body`."""
-        m, d = env.physics_model, env.physics_data
-        n = int(d.ncon)
-        if n == 0:
-            return False
-        grip = self._gripper_geoms(env)
-        g1, g2 = np.asarray(d.contact.geom1[:n]), np.asarray(d.contact.geom2[:n])
-        gb = np.asarray(m.geom_bodyid)
-        near = np.asarray(d.contact.dist[:n]) <= 1e-3
-        hit = (np.isin(g1, grip) & (gb[g2] == body)) | (np.isin(g2, grip) & (gb[g1] == body))
-        return bool(np.any(near & hit))
-
-    def _gripper_geoms(self, env: Any) -> np.ndarray:
-        import mujoco
-
-        if self._grip_cache is None:
-            m = env.physics_model
-            root = int(
-                mujoco.mj_name2id(
-                    m, mujoco.mjtObj.mjOBJ_BODY, env.unwrapped_libero.env.robots[0].gripper.root_body
-                )
-            )
-            bodies = subtree_bodies(m, root)
-            self._grip_cache = np.flatnonzero(np.isin(np.asarray(m.geom_bodyid), bodies))
-        return self._grip_cache
+        """A gripper geom touches a geom of MuJoCo body `body`."""
+        return env.scene_facts.gripper_touches(body_geoms(env, body))
 
     def gaze_points(self, env: Any) -> dict[str, tuple[np.ndarray, bool]]:
         """The task's parts the eyes visit besides `obj` and `goal` (the drawer's handle, the knob), now:

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from gazereg.envs.libero.scene import Boxes, subtree_mask
+from gazereg.envs.libero.scene import Boxes, collision_boxes, subtree_geoms
 
 
 @dataclass(frozen=True)
@@ -36,19 +36,14 @@ class Joint:
         return float(env.physics_data.qpos[self.qpos])
 
 
+def body_geoms(env: Any, body: int) -> np.ndarray:
+    """Ids of the geoms of MuJoCo body `body` alone."""
+    return np.flatnonzero(np.asarray(env.physics_model.geom_bodyid) == body)
+
+
 def body_boxes(env: Any, body: int) -> Boxes:
     """The oriented boxes around the collision geoms of MuJoCo body `body` alone (world, metres)."""
-    m, d = env.physics_model, env.physics_data
-    g = np.flatnonzero(np.asarray(m.geom_bodyid) == body)
-    g = g[(m.geom_contype[g] != 0) | (m.geom_conaffinity[g] != 0)]
-    rot = d.geom_xmat[g].reshape(-1, 3, 3).copy()
-    centre = d.geom_xpos[g] + np.einsum("nij,nj->ni", rot, m.geom_aabb[g, :3])
-    return Boxes(centre, rot, m.geom_aabb[g, 3:].copy())
-
-
-def subtree_bodies(model: Any, root: int) -> np.ndarray:
-    """Ids of body `root` and every body below it."""
-    return np.flatnonzero(subtree_mask(model, root))
+    return collision_boxes(env.physics_model, env.physics_data, body_geoms(env, body))
 
 
 def frame(approach: np.ndarray, closing: np.ndarray) -> np.ndarray:
@@ -82,7 +77,7 @@ def support_top(env: Any, name: str, xy: np.ndarray) -> float:
         root = int(m.site_bodyid[int(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, name))])
     else:
         root = int(e.obj_body_id[facts.owner(name)])
-    boxes = Boxes.concat([body_boxes(env, int(b)) for b in subtree_bodies(m, root)])
+    boxes = collision_boxes(m, env.physics_data, subtree_geoms(m, root))
     if not len(boxes):
         return float(facts.position(name)[2])
     tops = line_tops(boxes, xy)

@@ -91,19 +91,24 @@ class Boxes:
         return np.linalg.norm(np.maximum(np.abs(local) - self.half[None], 0.0), axis=-1)
 
 
-def subtree_mask(model: Any, root: int) -> np.ndarray:
-    """(nbody,) bool: body `root` and every body below it."""
+def subtree_geoms(model: Any, root: int) -> np.ndarray:
+    """Ids of every geom of body `root` and the bodies below it."""
     parent = np.asarray(model.body_parentid)
     inside = np.zeros(model.nbody, dtype=bool)
     inside[root] = True
     for b in range(root + 1, model.nbody):  # MuJoCo numbers a body after its parent
         inside[b] = inside[parent[b]]
-    return inside
+    return np.flatnonzero(inside[np.asarray(model.geom_bodyid)])
 
 
-def _subtree_geoms(model: Any, root: int) -> np.ndarray:
-    """Ids of every geom of body `root` and the bodies below it."""
-    return np.flatnonzero(subtree_mask(model, root)[np.asarray(model.geom_bodyid)])
+def collision_boxes(model: Any, data: Any, geoms: np.ndarray) -> Boxes:
+    """The oriented boxes around the collision geoms among `geoms` (ids; visual ones are skipped), world metres:
+    each geom's own bounding box, in its own frame (exact for box geoms)."""
+    g = geoms[(model.geom_contype[geoms] != 0) | (model.geom_conaffinity[geoms] != 0)]
+    aabb = model.geom_aabb[g]  # (n, 6): centre (3), half sizes (3), in each geom's frame
+    rot = data.geom_xmat[g].reshape(-1, 3, 3).copy()
+    centre = data.geom_xpos[g] + np.einsum("nij,nj->ni", rot, aabb[:, :3])
+    return Boxes(centre, rot, aabb[:, 3:].copy())
 
 
 class SceneFacts:
@@ -132,7 +137,7 @@ class SceneFacts:
             return np.asarray([i for i in ids if i >= 0], dtype=np.int64)
 
         gripper = env.robots[0].gripper
-        self._grip_geoms = _subtree_geoms(m, body_id(gripper.root_body))
+        self._grip_geoms = subtree_geoms(m, body_id(gripper.root_body))
         imp = gripper.important_geoms
         self._left = geom_ids(list(imp["left_finger"]) + list(imp["left_fingerpad"]))
         self._right = geom_ids(list(imp["right_finger"]) + list(imp["right_fingerpad"]))
@@ -142,7 +147,7 @@ class SceneFacts:
         self._obj_geoms = np.zeros(0, dtype=np.int64)
         owner = None if self.roles.obj is None else self.owner(self.roles.obj)
         if owner is not None and owner in env.obj_body_id:
-            self._obj_geoms = _subtree_geoms(m, int(env.obj_body_id[owner]))
+            self._obj_geoms = subtree_geoms(m, int(env.obj_body_id[owner]))
 
     def owner(self, name: str) -> str:
         """The object or fixture `name` belongs to: a region's parent (LIBERO-Object's `basket_1_contain_region`
@@ -162,13 +167,10 @@ class SceneFacts:
     def geom_boxes(self, name: str) -> Boxes:
         """The oriented boxes around the collision geoms of an object or fixture (each geom's own bounding box,
         in its own frame: exact for box geoms)."""
-        m, d = self._model, self._env.sim.data._data
-        g = _subtree_geoms(m, int(self._env.obj_body_id[name]))
-        g = g[(m.geom_contype[g] != 0) | (m.geom_conaffinity[g] != 0)]
-        aabb = m.geom_aabb[g]  # (n, 6): centre (3), half sizes (3), in each geom's frame
-        rot = d.geom_xmat[g].reshape(-1, 3, 3).copy()
-        centre = d.geom_xpos[g] + np.einsum("nij,nj->ni", rot, aabb[:, :3])
-        return Boxes(centre, rot, aabb[:, 3:].copy())
+        m = self._model
+        return collision_boxes(
+            m, self._env.sim.data._data, subtree_geoms(m, int(self._env.obj_body_id[name]))
+        )
 
     def obstacles(self) -> Boxes:
         """The boxes of every object and fixture but obj and the tables/floor LIBERO's object states skip
@@ -193,21 +195,31 @@ class SceneFacts:
         out["hand"] = self.hand()
         return out
 
-    def contact_state(self) -> tuple[bool, bool]:
-        """(contact, grasp): a gripper geom touches obj; geoms of both fingers touch it."""
+    def _contacts(self) -> tuple[np.ndarray, np.ndarray]:
+        """(geom1, geom2) ids of the contacts closer than 1 mm now."""
         d = self._env.sim.data._data
         n = int(d.ncon)
-        if n == 0 or not len(self._obj_geoms):
+        near = np.asarray(d.contact.dist[:n]) <= 1e-3
+        return np.asarray(d.contact.geom1[:n])[near], np.asarray(d.contact.geom2[:n])[near]
+
+    @staticmethod
+    def _touching(contacts: tuple[np.ndarray, np.ndarray], a: np.ndarray, b: np.ndarray) -> bool:
+        """Whether one of `contacts` (`_contacts`) is between a geom of `a` and one of `b` (ids)."""
+        g1, g2 = contacts
+        return bool(np.any((np.isin(g1, a) & np.isin(g2, b)) | (np.isin(g2, a) & np.isin(g1, b))))
+
+    def gripper_touches(self, geoms: np.ndarray) -> bool:
+        """A gripper geom touches one of `geoms` (ids) now."""
+        return self._touching(self._contacts(), self._grip_geoms, geoms)
+
+    def contact_state(self) -> tuple[bool, bool]:
+        """(contact, grasp): a gripper geom touches obj; geoms of both fingers touch it."""
+        if not len(self._obj_geoms):
             return False, False
-        g1, g2 = np.asarray(d.contact.geom1[:n]), np.asarray(d.contact.geom2[:n])
-        touching = np.asarray(d.contact.dist[:n]) <= 1e-3
-        on1, on2 = np.isin(g1, self._obj_geoms), np.isin(g2, self._obj_geoms)
-
-        def touches(geoms: np.ndarray) -> bool:
-            return bool(np.any(touching & ((np.isin(g1, geoms) & on2) | (np.isin(g2, geoms) & on1))))
-
-        contact = touches(self._grip_geoms)
-        return contact, contact and touches(self._left) and touches(self._right)
+        contacts, obj = self._contacts(), self._obj_geoms
+        if not self._touching(contacts, self._grip_geoms, obj):
+            return False, False
+        return True, self._touching(contacts, self._left, obj) and self._touching(contacts, self._right, obj)
 
 
 def quat_xyzw_to_axis_angle(q: np.ndarray) -> np.ndarray:
