@@ -230,3 +230,28 @@ def test_eval_refuses_episodes_the_store_lacks(store, tmp_path, capsys):
     args = ["glc", "eval", "--store", str(store.root), "--checkpoint", str(ckpt), "--episodes", "0", "77"]
     assert cli.main(args) == 2
     assert "--episodes: episodes [77] are not in" in capsys.readouterr().err
+
+
+def test_evaluation_reads_a_store_larger_than_the_open_file_limit(tmp_path):
+    """Every memory-mapped episode holds open files: an evaluation that kept the episodes it read (held out
+    and training) ran out of file descriptors on a 2,250-episode store. Here 60 episodes (five files each)
+    under a limit of 128 open files."""
+    import resource
+
+    big = write_synthetic_gaze_store(tmp_path / "big", episodes=60, length=4, size=16, camera="cam", tasks=2)
+    assert len(list((big.root / "episodes" / "ep_000000").glob("*.npy"))) * 60 > 128
+    args = ["train", "--store", str(big.root), "--camera", "cam", "--gaze-source", "recorded"]
+    args += ["--out", str(tmp_path / "run"), "--holdout-every", "2", "--optim.steps", "1"]
+    args += ["--optim.batch-size", "2", "--optim.warmup-steps", "1"]
+    code = f"import sys; from gazereg.cli import glc_main; sys.exit(glc_main({args!r}))"
+
+    def limit_files():
+        resource.setrlimit(resource.RLIMIT_NOFILE, (128, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))
+
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, preexec_fn=limit_files, timeout=300
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    rep = json.loads((tmp_path / "run" / "eval.json").read_text())
+    assert len(rep["episodes"]) == 30 and rep["scores"]["all_valid"]["glc"]["n_frames"] == 120
+    assert "held out: 30 episodes, " in done.stderr  # a count, not 30 indices

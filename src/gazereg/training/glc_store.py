@@ -36,6 +36,7 @@ from gazereg.gaze.glc.evaluate import (
     evaluate_glc,
     gaze_points_source,
     holdout_split,
+    indices_text,
     resolve_glc_folder,
 )
 from gazereg.gaze.glc.model import GLC
@@ -247,7 +248,7 @@ def train_glc_on_store(cfg: GLCStoreTrainConfig) -> GLCStoreTrainResult:
     if not split.train:
         raise UsageError(
             f"--holdout / --holdout-every / --tasks: no training episodes left in {cfg.store} after holding out "
-            f"{list(split.heldout)}"
+            f"{indices_text(split.heldout)}"
         )
     model = _build_model(cfg)
     source = gaze_points_source(cfg.gaze, store)
@@ -257,11 +258,11 @@ def train_glc_on_store(cfg: GLCStoreTrainConfig) -> GLCStoreTrainResult:
         store, split.train, cfg.camera, mc.crop_size, mc.num_frames, cfg.stride, cfg.clip_hop, source
     )
     log.info(
-        "glc train: %d clips from %d episodes (%.1f s to load), held out %s",
+        "glc train: %d clips from %d episodes (%.1f s to load), held out: %s",
         len(ds),
         len(split.train),
         time.perf_counter() - t0,
-        list(split.heldout),
+        indices_text(split.heldout) if split.heldout else "none",
     )
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)

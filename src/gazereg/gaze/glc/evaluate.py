@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from gazereg.data.store import Episode, EpisodeStore
+from gazereg.data.store import EpisodeStore
 from gazereg.gaze.glc.data import episode_gaze_points, fixation_mask
 from gazereg.gaze.glc.metrics import center_prior_maps, evaluate_gaze, fit_center_prior, uniform_maps
 from gazereg.gaze.sources import GazeSource, GazeSourceParams, make_gaze_source
@@ -67,6 +67,14 @@ def holdout_split(store: EpisodeStore, holdout_every: int = 5, holdout: Sequence
     return HoldoutSplit(tuple(i for i in indices if i not in set(held)), tuple(held))
 
 
+def indices_text(indices: Sequence[int], show: int = 8) -> str:
+    """Episode indices for a log line: all of them up to `show`, else their count, first and last
+    (`450 episodes, 4..2249`)."""
+    if len(indices) <= show:
+        return f"episodes {list(indices)}"
+    return f"{len(indices)} episodes, {min(indices)}..{max(indices)}"
+
+
 def gaze_points_source(params: GazeSourceParams, store: EpisodeStore) -> RecordedParams | GazeSource:
     """What `episode_gaze_points` reads the true gaze points of `store`'s episodes from: recorded gaze is
     read as the stored points themselves; any other source is built from `params` and bound to `store`."""
@@ -89,31 +97,46 @@ def resolve_glc_folder(checkpoint: str | Path) -> Path | None:
     return p
 
 
+@dataclass
+class _EpisodesGaze:
+    """Gaze of several episodes, frames concatenated in episode order; episodes are read one at a time and
+    not kept (each memory-mapped episode holds open files, and a store holds thousands)."""
+
+    points: list[np.ndarray]  # per episode (T, 2), normalised (u, v), NaN where not valid
+    valid: list[np.ndarray]  # per episode (T,)
+    tasks: list[str]  # per episode
+    maps: list[np.ndarray]  # per episode (T, h, w) GLC maps, when predicted
+    seconds: float = 0.0  # the model's time for `maps`
+
+    def frame_tasks(self) -> np.ndarray:
+        """The task of every frame `(sum T,)`."""
+        return np.array([t for t, v in zip(self.tasks, self.valid, strict=True) for _ in range(len(v))])
+
+
 def _gaze_of(
-    store: EpisodeStore, indices: Sequence[int], camera: str, source: Any
-) -> tuple[list[np.ndarray], list[np.ndarray], list[Episode]]:
-    """Per episode: gaze points `(T, 2)`, their validity `(T,)`, and the episode itself."""
-    pts, valid, eps = [], [], []
+    store: EpisodeStore,
+    indices: Sequence[int],
+    camera: str,
+    source: Any,
+    glc: GLCGaze | None = None,
+    size: tuple[int, int] = (0, 0),
+) -> _EpisodesGaze:
+    """Read `indices` one episode at a time: gaze points and validity from `source`, and `glc`'s maps of
+    `size` when given."""
+    out = _EpisodesGaze([], [], [], [])
     for i in indices:
         ep = store.read(i, cameras=[camera])
         p, v = episode_gaze_points(ep, camera, source)
-        pts.append(p)
-        valid.append(v)
-        eps.append(ep)
-    return pts, valid, eps
-
-
-def _predict(
-    source: GLCGaze, episodes: Sequence[Episode], camera: str, size: tuple[int, int]
-) -> tuple[np.ndarray, float]:
-    """GLC maps `(sum T, h, w)` of all episodes, concatenated, and the seconds the model took."""
-    preds, seconds = [], 0.0
-    for ep in episodes:
-        t0 = time.perf_counter()
-        maps, _ = source(ep, camera, size)
-        seconds += time.perf_counter() - t0
-        preds.append(maps)
-    return np.concatenate(preds), seconds
+        out.points.append(p)
+        out.valid.append(v)
+        out.tasks.append(ep.task)
+        if glc is not None:
+            t0 = time.perf_counter()
+            maps, _ = glc(ep, camera, size)
+            out.seconds += time.perf_counter() - t0
+            out.maps.append(np.asarray(maps))
+        del ep
+    return out
 
 
 def _scores(pred: Any, pts: np.ndarray, valid: np.ndarray, mask: np.ndarray) -> dict[str, Any]:
@@ -122,10 +145,9 @@ def _scores(pred: Any, pts: np.ndarray, valid: np.ndarray, mask: np.ndarray) -> 
 
 
 def _per_task(
-    episodes: Sequence[Episode], pred: np.ndarray, centre: np.ndarray, pts: np.ndarray, valid: np.ndarray
+    tasks: np.ndarray, pred: np.ndarray, centre: np.ndarray, pts: np.ndarray, valid: np.ndarray
 ) -> dict[str, dict[str, Any]]:
-    """F1 of GLC and of the centre prior on each task's valid frames."""
-    tasks = np.array([ep.task for ep in episodes for _ in range(ep.length)])
+    """F1 of GLC and of the centre prior on each task's valid frames (`tasks (N,)`, one per frame)."""
     out = {}
     for task in sorted(set(tasks.tolist())):
         m = valid & (tasks == task)
@@ -157,15 +179,15 @@ def evaluate_glc(
         raise ValueError("no episodes to evaluate")
     source = GLCGaze(model)
     size = tuple(source.cfg.output_shape[1:])
-    pts, valid, eps = _gaze_of(store, episodes, camera, gaze_source)
-    pred, seconds = _predict(source, eps, camera, size)
-    P, V = np.concatenate(pts), np.concatenate(valid)
+    held = _gaze_of(store, episodes, camera, gaze_source, source, size)
+    pred, seconds = np.concatenate(held.maps), held.seconds
+    P, V = np.concatenate(held.points), np.concatenate(held.valid)
     if not V.any():
         raise ValueError(f"episodes {list(episodes)} have no valid gaze point for camera {camera!r}")
     centre, sigma = DEFAULT_CENTRE
     if train_episodes:
-        train_pts, train_valid, _ = _gaze_of(store, train_episodes, camera, gaze_source)
-        centre, sigma = fit_center_prior(np.concatenate(train_pts), np.concatenate(train_valid))
+        train = _gaze_of(store, train_episodes, camera, gaze_source)
+        centre, sigma = fit_center_prior(np.concatenate(train.points), np.concatenate(train.valid))
     methods = {
         "glc": pred,
         "centre_prior": center_prior_maps(pred.shape, centre, sigma).numpy(),
@@ -173,7 +195,9 @@ def evaluate_glc(
     }
     subsets = {"all_valid": V}
     if fixation_threshold > 0:
-        fixations = [fixation_mask(p, v, fixation_threshold) for p, v in zip(pts, valid, strict=True)]
+        fixations = [
+            fixation_mask(p, v, fixation_threshold) for p, v in zip(held.points, held.valid, strict=True)
+        ]
         subsets["fixation"] = np.concatenate(fixations)
     scores = {
         sub: {name: _scores(maps, P, V, mask) for name, maps in methods.items()}
@@ -187,7 +211,7 @@ def evaluate_glc(
         "train_episodes": [int(i) for i in train_episodes],
         "centre_prior": {"centre": list(centre), "sigma": list(sigma)},
         "scores": scores,
-        "per_task": _per_task(eps, pred, methods["centre_prior"], P, V),
+        "per_task": _per_task(held.frame_tasks(), pred, methods["centre_prior"], P, V),
         "glc_seconds": round(seconds, 3),
         "glc_frames_per_s": round(len(pred) / max(seconds, 1e-9), 3),
     }
@@ -205,7 +229,7 @@ def format_report(report: dict[str, Any]) -> str:
     """The scores of an `evaluate_glc` report as text: one line per subset and method, one per task."""
     lines = []
     for sub, d in report["scores"].items():
-        lines.append(f"{sub} frames of episodes {report['episodes']}:")
+        lines.append(f"{sub} frames of {indices_text(report['episodes'])}:")
         lines += [_row(name, s) for name, s in d.items()]
     for task, d in report["per_task"].items():
         lines.append(
