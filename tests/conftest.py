@@ -1,5 +1,6 @@
 import importlib.util
 import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -39,11 +40,29 @@ def finished_experiment(tmp_path_factory):
     return out
 
 
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load_script(relative: str, name: str | None = None):
+    """The repository's file `relative` (`scripts/tune_finetune.py`) executed as a fresh module `name` (default
+    its stem), registered in `sys.modules` (dataclasses look their module up there)."""
+    path = ROOT / relative
+    name = name or path.stem
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="session")
+def load_script():
+    """Loads a script of the repository as a module: `load_script("scripts/x.py", name=None)` (another `name`
+    gives another, fresh module)."""
+    return _load_script
+
+
 @pytest.fixture(scope="session")
 def script():
     """scripts/update_results.py loaded as a module: the script that writes and checks the docs' blocks."""
-    path = Path(__file__).resolve().parents[1] / "scripts" / "update_results.py"
-    spec = importlib.util.spec_from_file_location("update_results", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return _load_script("scripts/update_results.py")

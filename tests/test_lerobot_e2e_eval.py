@@ -4,20 +4,17 @@ evaluation (its jobs, worker and records) and reported with gazereg's success ta
 from __future__ import annotations
 
 import argparse
-import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from gazereg.report.ids import RunId
 
-ROOT = Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location("lerobot_e2e_eval", ROOT / "scripts" / "lerobot_e2e_eval.py")
-script = importlib.util.module_from_spec(spec)
-sys.modules["lerobot_e2e_eval"] = script
-spec.loader.exec_module(script)
+
+@pytest.fixture(scope="module")
+def e2e(load_script):
+    """scripts/lerobot_e2e_eval.py loaded as a module."""
+    return load_script("scripts/lerobot_e2e_eval.py")
 
 
 class Served:
@@ -41,12 +38,12 @@ def args(**changes):
 
 
 @pytest.mark.sim
-def test_a_served_policy_runs_in_gazeregs_rollout_worker(tmp_path):
+def test_a_served_policy_runs_in_gazeregs_rollout_worker(e2e, tmp_path):
     a = args()
-    cfg = script.eval_config(a, tmp_path / "eval")
+    cfg = e2e.eval_config(a, tmp_path / "eval")
     served = Served(np.full(4, 3.0))  # out of range: the adapter clips it to [-1, 1]
-    policy = script.LanePolicy(served, a.camera, a.image_size)
-    records = script.rollouts(policy, RunId("smolvla", a.seed), tmp_path, cfg)
+    policy = e2e.LanePolicy(served, a.camera, a.image_size)
+    records = e2e.rollouts(policy, RunId("smolvla", a.seed), tmp_path, cfg)
     assert [(r["arm"], r["task"], r["condition"], r["seed"]) for r in records] == [
         ("smolvla@s1000", "reach-v3", "clean", 1000),
         ("smolvla@s1000", "reach-v3", "clean", 1001),
@@ -56,14 +53,14 @@ def test_a_served_policy_runs_in_gazeregs_rollout_worker(tmp_path):
     images, state, task = served.seen[0]
     assert images == {"observation.images.corner2": (64, 64, 3)} and state == (4,)
     assert isinstance(task, str) and task
-    entry = script.arm_results(records, "smolvla")
+    entry = e2e.arm_results(records, "smolvla")
     assert (
         entry["success"] == [False, False] and entry["steps"] == [6, 6] and entry["task"] == ["reach-v3"] * 2
     )
     assert entry["rate"] == 0.0 and entry["wilson95"][0] == 0.0 < entry["wilson95"][1] < 1.0
 
 
-def test_the_report_table_is_gazeregs_success_table():
+def test_the_report_table_is_gazeregs_success_table(e2e):
     results = {
         "command": "python scripts/lerobot_e2e.py", "machine": "m", "wall_s": 60.0, "tasks": ["a", "b"],
         "demos": 2, "steps": 2, "gaze_source": "visuomotor", "glc": None, "setup_seeds": [1000, 1001],
@@ -75,17 +72,17 @@ def test_the_report_table_is_gazeregs_success_table():
         "attention_kl_gaze_to_attention": {"smolvla": 0.5, "smolvla_gaze": 0.25},
         "stage_seconds": {"1_collect": 60.0},
     }  # fmt: skip
-    records = script.episode_records(results)
+    records = e2e.episode_records(results)
     assert [r["seed"] for r in records[:4]] == [1000, 1001, 1000, 1001]
-    text = script.report_markdown(results)
+    text = e2e.report_markdown(results)
     assert "| a | 1/2 [0.09, 0.91] | 2/2 [0.34, 1.00] |" in text
     assert "| pooled | 1/4 [0.05, 0.70] | 3/4 [0.30, 0.95] |" in text
     assert "exact McNemar p = 0.500" in text
 
 
-def test_the_lane_policy_clips_and_batches_like_a_gazereg_policy():
+def test_the_lane_policy_clips_and_batches_like_a_gazereg_policy(e2e):
     served = Served(np.array([3.0, -2.0, 0.5, 0.0]))
-    policy = script.LanePolicy(served, "corner2", 64)
+    policy = e2e.LanePolicy(served, "corner2", 64)
     assert policy.config.cameras == ("corner2",) and policy.config.image_hw == (64, 64)
     batch = {"state": np.zeros((2, 4), np.float32), "images": {"corner2": np.zeros((2, 64, 64, 3), np.uint8)}}
     actions = policy.select_action(batch, ["reach", "push"])

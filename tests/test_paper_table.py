@@ -5,7 +5,6 @@ line. The runs are a committed archive (docs/records/paper-abl-b) given another 
 episodes."""
 
 import gzip
-import importlib.util
 import json
 import shutil
 from pathlib import Path
@@ -146,10 +145,8 @@ def test_bad_rows_are_refused(spatial, tmp_path):
         paper_table({"aloha": aloha})
 
 
-def test_the_script_writes_the_table_or_refuses_in_one_line(spatial, tmp_path, capsys):
-    spec = importlib.util.spec_from_file_location("paper_table_script", ROOT / "scripts" / "paper_table.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+def test_the_script_writes_the_table_or_refuses_in_one_line(spatial, tmp_path, capsys, load_script):
+    script = load_script("scripts/paper_table.py", "paper_table_script")
     out = tmp_path / "table.md"
     assert script.main(["--run", f"libero_spatial={spatial.path}", "--out", str(out)]) == 0
     assert out.read_text() == paper_table({"libero_spatial": read_run(spatial.path)})

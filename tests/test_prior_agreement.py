@@ -1,26 +1,26 @@
 """scripts/prior_agreement.py: how far a gaze prior is from a reference on the policy's patch grid."""
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 
 from gazereg.data.store import EpisodeStore
 
-ROOT = Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location("prior_agreement", ROOT / "scripts" / "prior_agreement.py")
-script = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(script)
+
+@pytest.fixture(scope="module")
+def agreement(load_script):
+    """scripts/prior_agreement.py loaded as a module."""
+    return load_script("scripts/prior_agreement.py")
 
 
-def test_peak_distance_is_chebyshev_on_the_grid_and_undefined_for_a_flat_map():
+def test_peak_distance_is_chebyshev_on_the_grid_and_undefined_for_a_flat_map(agreement):
     a, b = torch.zeros(3, 16), torch.zeros(3, 16)
     a[0, 0], b[0, 0] = 1, 1  # same patch
     a[1, 0], b[1, 4 * 2 + 1] = 1, 1  # (0, 0) vs (2, 1): 2 patches apart
     a[2], b[2, 5] = 1 / 16, 1  # flat
-    d = script.peak_distance(a, b, (4, 4))
+    d = agreement.peak_distance(a, b, (4, 4))
     assert d[:2].tolist() == [0.0, 2.0] and math.isnan(d[2])
 
 
@@ -35,7 +35,7 @@ def _store_with_priors(root, priors):
     return store
 
 
-def test_agreement_is_perfect_for_the_same_prior_and_counts_patches_for_a_moved_one(tmp_path):
+def test_agreement_is_perfect_for_the_same_prior_and_counts_patches_for_a_moved_one(agreement, tmp_path):
     from gazereg.patches import PatchGeometry
 
     real = np.full((4, 16, 16), 1e-3, np.float32)
@@ -44,11 +44,11 @@ def test_agreement_is_perfect_for_the_same_prior_and_counts_patches_for_a_moved_
     moved[:, 2, 14] = 1.0  # patch (0, 3)
     store = _store_with_priors(tmp_path / "s", {"real": real, "moved": moved, "flat": np.ones((4, 16, 16))})
     geometry = PatchGeometry(input_hw=(16, 16), patch_size=4)
-    same = script.agreement(store, "real", "real", geometry)
+    same = agreement.agreement(store, "real", "real", geometry)
     assert same["kl"] < 1e-6 and same["cc"] > 0.999 and same["peak"] == 0 and same["same_peak"] == 1.0
-    far = script.agreement(store, "real", "moved", geometry)
+    far = agreement.agreement(store, "real", "moved", geometry)
     assert far["peak"] == 3 and far["same_peak"] == 0 and far["kl"] > 1 and far["frames"] == 4
-    flat = script.agreement(store, "real", "flat", geometry)
-    assert math.isnan(flat["peak"]) and "n/a (flat)" in script.table(
+    flat = agreement.agreement(store, "real", "flat", geometry)
+    assert math.isnan(flat["peak"]) and "n/a (flat)" in agreement.table(
         tmp_path, "real", {"flat": flat}, geometry
     )

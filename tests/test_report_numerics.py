@@ -2,7 +2,6 @@
 capability, the bf16 instruction sets, the CPU) in report.json's "machine" and in the lines that say where it ran
 (report.md's header, the results block's run line)."""
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -73,10 +72,8 @@ def test_report_md_and_the_block_run_line_name_the_numerics():
     assert f"(`gazereg experiment --preset smoke`); {said}. Tasks: reach-v3;" in run_line
 
 
-def test_every_benchmark_records_the_cpu_capability_and_the_precision():
-    spec = importlib.util.spec_from_file_location("_timing", ROOT / "benchmarks" / "_timing.py")
-    timing = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(timing)
+def test_every_benchmark_records_the_cpu_capability_and_the_precision(load_script):
+    timing = load_script("benchmarks/_timing.py")
     info = timing.machine_info(threads=3)
     assert info["resolved_precision"] == hardware.auto_precision("cpu") and info["threads"] == 3
     assert info["cpu_capability"] == torch.backends.cpu.get_cpu_capability()

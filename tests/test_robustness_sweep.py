@@ -1,7 +1,6 @@
 """scripts/robustness_sweep.py: finished experiments' final checkpoints under more perturbations, the
 conditions they already evaluated read from their own records."""
 
-import importlib.util
 import json
 import subprocess
 import sys
@@ -13,9 +12,12 @@ from gazereg.runtime.errors import UsageError
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "scripts" / "robustness_sweep.py"
-spec = importlib.util.spec_from_file_location("robustness_sweep", SCRIPT)
-script = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(script)
+
+
+@pytest.fixture(scope="module")
+def sweep(load_script):
+    """scripts/robustness_sweep.py loaded as a module."""
+    return load_script("scripts/robustness_sweep.py")
 
 
 def rec(arm, condition, seed, success, task="t"):
@@ -35,12 +37,12 @@ def info(checkpoints, conditions=("clean", "dim:0.7"), records=(), **changes):
     }
 
 
-def test_plan_rolls_out_what_not_every_folder_evaluated_and_reuses_the_rest():
+def test_plan_rolls_out_what_not_every_folder_evaluated_and_reuses_the_rest(sweep):
     a = info(
         {"gaze@s0": "x"}, records=[rec("gaze@s0", "clean", 1000, True), rec("gaze@s0", "dim:0.7", 1000, 0)]
     )
     b = info({"baseline@s0": "y"}, ("clean",), [rec("baseline@s0", "clean", 1000, False)])
-    rollout, reused = script.plan({Path("a"): a, Path("b"): b}, ("clean", "dim:0.7", "tint:1"))
+    rollout, reused = sweep.plan({Path("a"): a, Path("b"): b}, ("clean", "dim:0.7", "tint:1"))
     assert rollout == ("dim:0.7", "tint:1")  # b never ran dim: both roll it out again, a's record dropped
     assert [(r["arm"], r["condition"]) for r in reused] == [("gaze@s0", "clean"), ("baseline@s0", "clean")]
 
@@ -52,12 +54,12 @@ def test_plan_rolls_out_what_not_every_folder_evaluated_and_reuses_the_rest():
         (info({"gaze@s0": "y"}), "run gaze@s0 is in both a and b"),
     ],
 )
-def test_plan_refuses_folders_whose_episodes_would_not_pair(b, message):
+def test_plan_refuses_folders_whose_episodes_would_not_pair(sweep, b, message):
     with pytest.raises(UsageError, match=message):
-        script.plan({Path("a"): info({"gaze@s0": "x"}), Path("b"): b}, ("clean",))
+        sweep.plan({Path("a"): info({"gaze@s0": "x"}), Path("b"): b}, ("clean",))
 
 
-def test_comparisons_pair_each_arm_with_the_baseline_and_the_gaze_arm_with_its_controls():
+def test_comparisons_pair_each_arm_with_the_baseline_and_the_gaze_arm_with_its_controls(sweep):
     records = []
     for s in (0, 1):
         for seed in range(4):
@@ -66,7 +68,7 @@ def test_comparisons_pair_each_arm_with_the_baseline_and_the_gaze_arm_with_its_c
                 rec(f"gaze@s{s}", "clean", seed, seed < 3),
             ]
             records.append(rec(f"uniform@s{s}", "clean", seed, seed < 2))
-    paired, seeds = script.comparisons(records)
+    paired, seeds = sweep.comparisons(records)
     assert set(paired) == {
         "gaze vs baseline | clean",
         "uniform vs baseline | clean",
@@ -76,7 +78,7 @@ def test_comparisons_pair_each_arm_with_the_baseline_and_the_gaze_arm_with_its_c
     assert paired["gaze vs uniform | clean"]["rate_diff"] == pytest.approx(0.25)
     assert seeds["gaze vs uniform | clean"]["above"] == 2
     result = {"conditions": ["clean", "dim:0.7"], "paired": paired, "seed_level": seeds}
-    lines = script.difference_lines(result)
+    lines = sweep.difference_lines(result)
     assert lines[0] == "| condition | gaze vs baseline | uniform vs baseline | gaze vs uniform |"
     assert lines[2].startswith("| clean | +0.50 [") and ", seeds 2/0 |" in lines[2]
     assert lines[3] == "| dim:0.7 | - | - | - |"
@@ -108,12 +110,12 @@ def test_the_sweep_rolls_out_the_new_condition_and_reads_clean_from_the_experime
 ARCHIVES = [ROOT / "docs" / "records" / name for name in ("paper-abl-b", "paper-abl-c")]
 
 
-def test_the_sweep_reads_archives_when_every_condition_is_in_their_records(tmp_path, capsys):
+def test_the_sweep_reads_archives_when_every_condition_is_in_their_records(sweep, tmp_path, capsys):
     """Committed archives (evaluation records compressed, no checkpoints): conditions both evaluated are read,
     none rolled out; a condition that would need a rollout is refused in one line, before any work."""
     out = tmp_path / "sweep"
     args = [*map(str, ARCHIVES), "--conditions", "clean", "dim:0.7", "--out", str(out)]
-    assert script.main(args) == 0
+    assert sweep.main(args) == 0
     result = json.loads((out / "robustness.json").read_text())
     assert result["rolled_out"] == [] and list(result["success"]) == ["baseline", "gaze"]
     for archive, arm in zip(ARCHIVES, ("baseline", "gaze")):
@@ -126,5 +128,5 @@ def test_the_sweep_reads_archives_when_every_condition_is_in_their_records(tmp_p
     with pytest.raises(
         UsageError, match=r"tint:1 must be rolled out, but .*paper-abl-b.* keep no checkpoints"
     ):
-        script.main([*args[:2], "--conditions", "clean", "tint:1", "--out", str(tmp_path / "other")])
+        sweep.main([*args[:2], "--conditions", "clean", "tint:1", "--out", str(tmp_path / "other")])
     assert not (tmp_path / "other").exists()

@@ -4,29 +4,29 @@ level (lazy imports are for heavy third-party packages), files under 400 lines a
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def load_facts():
-    spec = importlib.util.spec_from_file_location("structure_facts", ROOT / "scripts" / "structure_facts.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+@pytest.fixture(scope="module")
+def structure(load_script):
+    """scripts/structure_facts.py: the package's facts (`analyse`) and its rules."""
+    return load_script("scripts/structure_facts.py")
 
 
-def test_no_import_loops_and_no_back_arrows():
-    facts = load_facts().analyse(ROOT / "src" / "gazereg")
+def test_no_import_loops_and_no_back_arrows(structure):
+    facts = structure.analyse(ROOT / "src" / "gazereg")
     assert facts["loops"] == []
     assert facts["package_loops"] == []
     assert facts["back_arrows"] == []
     assert facts["unlayered"] == []
 
 
-def test_string_imports_are_edges_of_the_package_graph():
-    facts = load_facts().analyse(ROOT / "src" / "gazereg")
+def test_string_imports_are_edges_of_the_package_graph(structure):
+    facts = structure.analyse(ROOT / "src" / "gazereg")
     # the command tables name their modules as "module:function": those are edges the loops and layers see
     assert facts["string_imports"] >= 20
     assert "gazereg.cli -> gazereg.training.glc_cli" in facts["string_import_edges"]
@@ -34,8 +34,8 @@ def test_string_imports_are_edges_of_the_package_graph():
     assert facts["dangling_string_imports"] == []
 
 
-def test_the_core_sits_below_data_and_gaze():
-    facts = load_facts()
+def test_the_core_sits_below_data_and_gaze(structure):
+    facts = structure
     core = facts.layer_of("gazereg.patches")
     for module in ("gazereg.heatmaps", "gazereg.aggregation", "gazereg.losses", "gazereg.metrics"):
         assert facts.layer_of(module) == core, module
@@ -43,27 +43,27 @@ def test_the_core_sits_below_data_and_gaze():
     assert facts.layer_of("gazereg.gaze.priors") > facts.layer_of("gazereg.data.dataset")
 
 
-def test_own_imports_at_module_level_and_short_files_and_functions():
-    facts = load_facts().analyse(ROOT / "src" / "gazereg")
+def test_own_imports_at_module_level_and_short_files_and_functions(structure):
+    facts = structure.analyse(ROOT / "src" / "gazereg")
     assert facts["function_level_imports"] == 0
     assert facts["long_files"] == []
     assert facts["long_functions"] == []
 
 
-def test_the_analysis_sees_loops_and_back_arrows(tmp_path):
+def test_the_analysis_sees_loops_and_back_arrows(structure, tmp_path):
     pkg = tmp_path / "gazereg"
     (pkg / "data").mkdir(parents=True)
     (pkg / "__init__.py").write_text("")
     (pkg / "data" / "__init__.py").write_text("")
     (pkg / "losses.py").write_text("def f():\n    from gazereg.data import store\n")
     (pkg / "data" / "store.py").write_text("from gazereg import losses\n")
-    facts = load_facts().analyse(pkg)
+    facts = structure.analyse(pkg)
     assert facts["loops"] == [["gazereg.data.store", "gazereg.losses"]]
     assert facts["back_arrows"] == ["gazereg.losses -> gazereg.data.store"]
     assert facts["function_level_imports"] == 1
 
 
-def test_the_analysis_sees_string_imports(tmp_path):
+def test_the_analysis_sees_string_imports(structure, tmp_path):
     pkg = tmp_path / "gazereg"
     (pkg / "data").mkdir(parents=True)
     (pkg / "__init__.py").write_text("")
@@ -81,7 +81,7 @@ def test_the_analysis_sees_string_imports(tmp_path):
         "COMMANDS = {'a': ('gazereg.losses:f', 'help'), 'b': ('gazereg.nowhere:main', 'help')}\n"
         "OTHER = 'torch.nn:Module'\n"
     )
-    facts = load_facts().analyse(pkg)
+    facts = structure.analyse(pkg)
     assert facts["loops"] == [["gazereg.data.store", "gazereg.losses"]]
     assert facts["back_arrows"] == ["gazereg.losses -> gazereg.data.store"]
     assert facts["string_imports"] == 2

@@ -1,7 +1,6 @@
 """The baseline tuning's round 2 is derived from round 1's results by the rule its docstring states: every
 one-factor change that beat `default` on validation, applied together; none before round 1 is complete."""
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -11,10 +10,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture
-def tune(tmp_path, monkeypatch):
-    spec = importlib.util.spec_from_file_location("tune_baseline", ROOT / "scripts" / "tune_baseline.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+def tune(tmp_path, monkeypatch, load_script):
+    module = load_script("scripts/tune_baseline.py")
     monkeypatch.setattr(module, "DOCS", tmp_path)
     return module
 
@@ -57,14 +54,12 @@ def test_round_two_needs_round_one_and_two_winners(tune):
     assert tune.combined() is None  # a single winner: it is the choice, nothing to combine
 
 
-def test_the_tuned_recipe_is_the_chosen_candidates_and_the_paper_presets():
+def test_the_tuned_recipe_is_the_chosen_candidates_and_the_paper_presets(load_script):
     from gazereg.experiment.config import PRESETS, paper, sweep
     from gazereg.runtime.config import config_diff, parse, to_dict
     from gazereg.training.config import tuned
 
-    spec = importlib.util.spec_from_file_location("tune_real", ROOT / "scripts" / "tune_baseline.py")
-    tune = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tune)  # the committed docs/tuning results
+    tune = load_script("scripts/tune_baseline.py", "tune_real")  # the committed docs/tuning results
     name = tune.chosen()
     assert name is not None, "tuning is not over: no chosen candidate in docs/tuning"
     cmd = tune.command(name, tune.all_candidates()[name][1])

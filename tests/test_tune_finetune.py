@@ -5,10 +5,8 @@ archived and recorded. Nothing trains: a candidate's archive is a committed arch
 for the baseline arm, -c for the gaze arm) with the candidate's configuration and validation episodes."""
 
 import gzip
-import importlib.util
 import json
 import shutil
-import sys
 from pathlib import Path
 
 import pytest
@@ -23,17 +21,9 @@ ROOT = Path(__file__).resolve().parents[1]
 TASKS = ml45_split().test
 
 
-def load(name="tune_finetune"):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / "tune_finetune.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # its dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.fixture
-def tune(tmp_path, monkeypatch):
-    module = load()
+def tune(tmp_path, monkeypatch, load_script):
+    module = load_script("scripts/tune_finetune.py")
     monkeypatch.setattr(module, "ROOT", tmp_path)
     monkeypatch.setattr(module, "DOCS", tmp_path / "docs" / "tuning")
     monkeypatch.setattr(module, "RECORDS", tmp_path / "docs" / "records" / "tune-ft")
@@ -278,5 +268,8 @@ def test_a_candidate_is_run_archived_and_recorded(tune, tmp_path, monkeypatch):
     )
 
 
-def test_the_committed_table_is_the_archives():
-    assert load("tune_finetune_real").table() == (ROOT / "docs" / "tuning" / "finetune.md").read_text()
+def test_the_committed_table_is_the_archives(load_script):
+    assert (
+        load_script("scripts/tune_finetune.py", "tune_finetune_real").table()
+        == (ROOT / "docs" / "tuning" / "finetune.md").read_text()
+    )

@@ -2,10 +2,8 @@
 on archives made here (no LIBERO needed)."""
 
 import gzip
-import importlib.util
 import json
 import shutil
-import sys
 from pathlib import Path
 
 import pytest
@@ -19,17 +17,9 @@ ROOT = Path(__file__).resolve().parents[1]
 TASKS = [f"libero_spatial/{i}" for i in range(10)]
 
 
-def load(name="tune_photometric"):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / "tune_photometric.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.fixture
-def tune(tmp_path, monkeypatch):
-    module = load()
+def tune(tmp_path, monkeypatch, load_script):
+    module = load_script("scripts/tune_photometric.py")
     monkeypatch.setattr(module, "ROOT", tmp_path)
     monkeypatch.setattr(module, "DOCS", tmp_path / "docs" / "tuning")
     monkeypatch.setattr(module, "RECORDS", tmp_path / "docs" / "records" / "tune-photometric")
@@ -125,5 +115,8 @@ def test_a_candidate_is_run_archived_and_recorded(tune, monkeypatch):
     )
 
 
-def test_the_committed_table_is_the_archives():
-    assert load("tune_photometric_real").table() == (ROOT / "docs" / "tuning" / "photometric.md").read_text()
+def test_the_committed_table_is_the_archives(load_script):
+    assert (
+        load_script("scripts/tune_photometric.py", "tune_photometric_real").table()
+        == (ROOT / "docs" / "tuning" / "photometric.md").read_text()
+    )

@@ -109,16 +109,13 @@ def test_command_line_strip_from_source_and_prior(tmp_path, capsys):
     assert "strip" in capsys.readouterr().out
 
 
-def test_viz_functions_are_short_and_import_the_package_at_module_level():
+def test_viz_functions_are_short_and_import_the_package_at_module_level(load_script):
     """draw_strip is a few helpers under the function limit; own imports sit at the top of the modules."""
     import ast
-    import importlib.util
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[2]
-    spec = importlib.util.spec_from_file_location("structure_facts", root / "scripts" / "structure_facts.py")
-    facts = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(facts)
+    facts = load_script("scripts/structure_facts.py")
     for name in ("strip", "overlay"):
         path = root / "src" / "gazereg" / "viz" / f"{name}.py"
         tree = ast.parse(path.read_text())
