@@ -68,6 +68,16 @@ def machine_info(precision: str | None = None, **extra: Any) -> dict[str, Any]:
     }
 
 
+def machine_line(m: dict[str, Any]) -> str:
+    """`machine_info`'s record as the head of a benchmark's table: CPU, cores, torch, training precision and
+    the load average before the run."""
+    precision = "bf16" if m["resolved_precision"] == "bf16" else "float32"
+    return (
+        f"{m['cpu_model']} ({m['cpu_vendor']}, torch CPU capability {m['cpu_capability']}), {m['cores']} cores, "
+        f"torch {m['torch']}, {precision}; load average before {m['load_avg_before'][0]}"
+    )
+
+
 def print_markdown(path: Path, render: Callable[[dict[str, Any], str], str], prog: str) -> int:
     """`--markdown JSON` of a benchmark script: print `render(the JSON, its file name)` and return 0, or one line
     on stderr naming the missing file and return 2."""

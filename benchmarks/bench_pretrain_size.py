@@ -22,7 +22,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import torch
-from _timing import machine_info, print_markdown
+from _timing import machine_info, machine_line, print_markdown
 from bench_train import make_store
 
 from gazereg.data.dataset import EpisodeDataset, StepBatchSampler
@@ -64,13 +64,7 @@ def step(policy: VLAPolicy, opt: torch.optim.Optimizer, batch: dict, i: int) -> 
 
 def markdown_table(result: dict, source: str) -> str:
     """A JSON this script wrote as a markdown table under a line naming the machine, the batch and `source`."""
-    m = result["machine"]
-    precision = "bf16" if m["resolved_precision"] == "bf16" else "float32"
-    head = (
-        f"{m['cpu_model']} ({m['cpu_vendor']}, torch CPU capability {m['cpu_capability']}), {m['cores']} cores, "
-        f"torch {m['torch']}, {precision}; batch {result['batch']}, load average before "
-        f"{m['load_avg_before'][0]}; from `{source}`:"
-    )
+    head = f"{machine_line(result['machine'])}; batch {result['batch']}; from `{source}`:"
     steps = result["pretrain_steps"]
     lines = [
         head,

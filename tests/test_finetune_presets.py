@@ -7,9 +7,10 @@ from dataclasses import replace
 
 from gazereg.envs.metaworld.ml45 import ml45_split
 from gazereg.experiment.config import PRESETS
-from gazereg.experiment.config_finetune import GENERALIST
+from gazereg.experiment.config_finetune import GENERALIST, GLC_ML45
 from gazereg.experiment.pretrain_config import PRESETS as PRETRAIN_PRESETS
 from gazereg.experiment.pretrain_config import finetune_flags
+from gazereg.experiment.tuning import built_config
 from gazereg.runtime.config import to_dict
 
 
@@ -28,3 +29,22 @@ def test_finetune_runs_on_the_held_out_tasks_with_the_generalists_architecture()
     assert set(ft.train.data.extra_instructions) <= set(
         PRETRAIN_PRESETS["ml45"]().train.data.extra_instructions
     )
+
+
+def test_the_study_is_the_finetuning_preset_at_the_tunings_choice(load_script):
+    """`ml45_study`'s recipe and gaze term are what the tuning chose on validation setups
+    (scripts/tune_finetune.py over the committed archives, docs/tuning/finetune.md): the overrides of the
+    deepest finished step, applied to `ml45_finetune`; the rest is the study's design."""
+    tune = load_script("scripts/tune_finetune.py", "tune_finetune_study")
+    chosen = [c for _, _, c in tune.plan() if c is not None and c.step.chained]
+    assert chosen, "no step of the tuning chain has finished"
+    tuned = built_config(("gazereg", "experiment", "--preset", "ml45_finetune", *chosen[-1].overrides))
+    study, study50 = PRESETS["ml45_study"](), PRESETS["ml45_study50"]()
+    assert study.train.steps == tuned.train.steps and study.train.optim == tuned.train.optim
+    assert study.train.init_from == tuned.train.init_from == GENERALIST
+    for key in ("weight", "queries", "layers"):
+        assert getattr(study.train.gaze, key) == getattr(tuned.train.gaze, key), key
+    assert study.arms == ("baseline", "gaze", "glc", "uniform") and study.train_seeds == (0, 1, 2)
+    assert study.glc.checkpoint == GLC_ML45 and study.eval.seed_start == 1000
+    assert (study.demos_per_task, study50.demos_per_task) == (10, 50)
+    assert to_dict(replace(study50, out=study.out, demos_per_task=10)) == to_dict(study)

@@ -56,7 +56,15 @@ def two_cores(monkeypatch):
 
 
 ADDED_SINCE = {
-    "experiment": {"aloha", "ml45_finetune", "ml45_scratch", "libero_object", "libero_goal"},
+    "experiment": {
+        "aloha",
+        "ml45_finetune",
+        "ml45_scratch",
+        "ml45_study",
+        "ml45_study50",
+        "libero_object",
+        "libero_goal",
+    },
     "evaluation budget": {"aloha-50", "libero-object-25", "libero-goal-25"},
 }
 """presets added after the snapshot (nothing to compare them with)"""

@@ -22,6 +22,8 @@ from gazereg.envs.metaworld.ml45 import ml45_split
 from gazereg.evaluation.config import EvalConfig
 from gazereg.experiment.config import PRESETS, ExperimentConfig
 from gazereg.experiment.pretrain_config import GENERALIST, held_out_instructions, ml45_policy
+from gazereg.gaze.sources.glc import GLCParams
+from gazereg.training.config import GazeConfig
 from gazereg.training.config import tuned as tuned_train
 
 
@@ -60,4 +62,53 @@ def ml45_scratch() -> ExperimentConfig:
     return replace(ft, out=Path("runs/ml45-scratch"), train=replace(ft.train, init_from=None))
 
 
-PRESETS.update({"ml45_finetune": ml45_finetune, "ml45_scratch": ml45_scratch})
+GLC_ML45 = Path("runs/glc-ml45/final")
+"""The study's GLC: trained on the visuomotor gaze of the 45 training tasks' demonstrations only, never a held-out
+task's (`gazereg glc train --store runs/pretrain/demos --gaze-source visuomotor --out runs/glc-ml45`;
+docs/pretraining.md); not committed (14 MB), rebuilt by that command"""
+
+STUDY_GAZE = GazeConfig(weight=1e-3, queries="action", layers=(-2, -1))
+"""The gaze term the tuning chose on validation setups (docs/tuning/finetune.md, "Chosen"): weight, query set
+and layers; every gaze-term arm of the study uses it, the controls at the same weight"""
+
+
+def ml45_study() -> ExperimentConfig:
+    """The fine-tuning study (issue 36 item 4) at 10 demonstrations per task: `ml45_finetune` at the tuned
+    recipe (6,000 steps) with the tuned gaze term (`STUDY_GAZE`); arms baseline, gaze (the visuomotor
+    prior), glc (`GLC_ML45`'s prediction from the video) and uniform (the term without any location); 3
+    training seeds, one per sitting; 50 unseen setups per task (1,000..1,049), clean; success at 3
+    checkpoints on 10 setups per task (convergence). Two arms train side by side on one thread each: the
+    2 cores train more steps per second so than one run on both (benchmarks/bench_parallel.py, docs/speed.md).
+
+        gazereg experiment --preset ml45_study --train-seeds 0 --out runs/study10-s0
+        gazereg experiment --preset ml45_study --train-seeds 1 --out runs/study10-s1 --data-from runs/study10-s0
+        gazereg experiment --preset ml45_study --train-seeds 2 --out runs/study10-s2 --data-from runs/study10-s0
+        gazereg pool --preset ml45_study --runs runs/study10-s0 runs/study10-s1 runs/study10-s2 --out runs/study10
+    """
+    ft = ml45_finetune()
+    return replace(
+        ft,
+        out=Path("runs/ml45-study"),
+        arms=("baseline", "gaze", "glc", "uniform"),
+        train_seeds=(0, 1, 2),
+        train=replace(ft.train, steps=6000, gaze=STUDY_GAZE),
+        glc=GLCParams(checkpoint=GLC_ML45),
+        eval=replace(ft.eval, episodes=50),
+        parallel=2,
+        threads_per_run=1,
+    )
+
+
+def ml45_study50() -> ExperimentConfig:
+    """`ml45_study` with 50 demonstrations per task (the same setups 0.. extended, the same evaluation)."""
+    return replace(ml45_study(), out=Path("runs/ml45-study50"), demos_per_task=50)
+
+
+PRESETS.update(
+    {
+        "ml45_finetune": ml45_finetune,
+        "ml45_scratch": ml45_scratch,
+        "ml45_study": ml45_study,
+        "ml45_study50": ml45_study50,
+    }
+)

@@ -19,13 +19,14 @@ from typing import Any
 
 import numpy as np
 
-from gazereg.data.store import EpisodeStore
+from gazereg.data.store import Episode, EpisodeStore
 from gazereg.gaze.glc.data import episode_gaze_points, fixation_mask
 from gazereg.gaze.glc.metrics import center_prior_maps, evaluate_gaze, fit_center_prior, uniform_maps
 from gazereg.gaze.sources import GazeSource, GazeSourceParams, make_gaze_source
 from gazereg.gaze.sources.glc import GLCGaze, GLCParams
 from gazereg.gaze.sources.recorded import RecordedParams
 from gazereg.runtime.errors import UsageError
+from gazereg.runtime.progress import Progress
 
 DEFAULT_CENTRE = ((0.5, 0.5), (0.15, 0.15))
 """`(centre (u, v), sigma (su, sv))` of the centre prior when there are no training episodes"""
@@ -108,6 +109,20 @@ class _EpisodesGaze:
     maps: list[np.ndarray]  # per episode (T, h, w) GLC maps, when predicted
     seconds: float = 0.0  # the model's time for `maps`
 
+    def add(
+        self, episode: Episode, camera: str, source: Any, glc: GLCGaze | None, size: tuple[int, int]
+    ) -> None:
+        """Append `episode`'s gaze points and validity from `source`, and `glc`'s maps of `size` when given."""
+        p, v = episode_gaze_points(episode, camera, source)
+        self.points.append(p)
+        self.valid.append(v)
+        self.tasks.append(episode.task)
+        if glc is not None:
+            t0 = time.perf_counter()
+            maps, _ = glc(episode, camera, size)
+            self.seconds += time.perf_counter() - t0
+            self.maps.append(np.asarray(maps))
+
     def frame_tasks(self) -> np.ndarray:
         """The task of every frame `(sum T,)`."""
         return np.array([t for t, v in zip(self.tasks, self.valid, strict=True) for _ in range(len(v))])
@@ -121,21 +136,13 @@ def _gaze_of(
     glc: GLCGaze | None = None,
     size: tuple[int, int] = (0, 0),
 ) -> _EpisodesGaze:
-    """Read `indices` one episode at a time: gaze points and validity from `source`, and `glc`'s maps of
-    `size` when given."""
+    """`_EpisodesGaze.add` of `indices`, read one at a time (a progress line: the model takes a while)."""
     out = _EpisodesGaze([], [], [], [])
-    for i in indices:
-        ep = store.read(i, cameras=[camera])
-        p, v = episode_gaze_points(ep, camera, source)
-        out.points.append(p)
-        out.valid.append(v)
-        out.tasks.append(ep.task)
-        if glc is not None:
-            t0 = time.perf_counter()
-            maps, _ = glc(ep, camera, size)
-            out.seconds += time.perf_counter() - t0
-            out.maps.append(np.asarray(maps))
-        del ep
+    label = "glc eval: predict" if glc is not None else "glc eval: the training episodes' gaze"
+    with Progress(label, len(indices), "episodes") as bar:
+        for i in indices:
+            out.add(store.read(i, cameras=[camera]), camera, source, glc, size)
+            bar.update()
     return out
 
 
