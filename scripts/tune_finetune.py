@@ -271,15 +271,26 @@ def term_scale(run: FinishedRun, gaze: bool) -> tuple[float | None, float]:
     return mean, sum(actions) / len(actions)
 
 
+def attention_fit(run: FinishedRun) -> str:
+    """How close the trained attention is to the gaze prior on held-out frames (the alignment stage, the query
+    set the run trained; mean over its training runs): correlation and KL(gaze || attention) in nats."""
+    fits = list(run.stage_outputs().alignment.values())
+    if not fits:
+        return ""
+    cc, kl = (sum(float(f[k]) for f in fits) / len(fits) for k in ("gaze_cc", "gaze_kl"))
+    return f"CC {cc:.2f}, KL {kl:.2f}"
+
+
 def row(entry: Entry) -> list[str]:
     """The table row of `entry`."""
     name, change = entry.candidate.name, entry.candidate.change
     if entry.run is None:
-        return [entry.step.name, name, change, "not run yet", "", "", ""]
+        return [entry.step.name, name, change, "not run yet", "", "", "", ""]
     val = validation_successes(entry.run.episodes())
     term, action = term_scale(entry.run, entry.step.arm == "gaze")
     ratio = "no gaze term" if term is None else f"{term:.3g} ({term / action:.3g} x action)"
-    return [entry.step.name, name, change, rate_text(val), per_task_text(val), ratio, f"{action:.3g}"]
+    fit = attention_fit(entry.run)
+    return [entry.step.name, name, change, rate_text(val), per_task_text(val), ratio, f"{action:.3g}", fit]
 
 
 def choices(steps: list[tuple[Step, list[Entry], Entry | None]]) -> list[str]:
@@ -310,13 +321,19 @@ def table() -> str:
         "2026-11-27 before any result); each row is one candidate's `gazereg experiment` run on Meta-World",
         "setups 1300..1319 of ML45's held-out tasks, recounted from its archive in docs/records/tune-ft/ (its",
         "command in docs/tuning/finetune/<candidate>.json). Gaze scale: the gaze weight times the final",
-        "training gaze KL, and its ratio to the final training action loss. The recipe-scratch rows train the same",
+        "training gaze KL, and its ratio to the final training action loss. Attention vs gaze: the trained",
+        "attention of the query set the run regularized (the action queries unless the row says otherwise)",
+        "against the gaze prior on held-out frames, correlation and KL(gaze || attention) in nats (a baseline",
+        "row: the attention it learned without the term). The recipe-scratch rows train the same",
         "policy from random weights (`ml45_scratch`); g-continued fine-tunes the longer-pretrained generalist",
         "(`gazereg pretrain --preset ml45_continued`); the rows after it, the generalist step's choice; the",
         "rows before it, the committed one.",
         "",
     ]
-    header = ("step", "candidate", "change", "validation success", "per task", "gaze scale", "action loss")
+    header = (
+        "step", "candidate", "change", "validation success", "per task", "gaze scale", "action loss",
+        "attention vs gaze",
+    )  # fmt: skip
     lines += markdown_table(header, [row(e) for _, entries, _ in steps for e in entries])
     return "\n".join(lines + choices(steps)) + "\n"
 

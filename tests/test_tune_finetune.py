@@ -230,7 +230,9 @@ def test_the_gaze_scale_is_read_from_the_training_metrics(tune):
         write_gz(
             dest / "train" / f"gaze_s{seed}" / "metrics.jsonl.gz", json.dumps(last) + "\n" + json.dumps(val)
         )
-    assert row_of(tune.table(), "w1").endswith("| 0.3 (6 x action) | 0.05 |")
+    fits = json.loads((dest / "stages" / "align.json").read_text())["alignment"].values()  # the three runs'
+    cc, kl = (sum(f[k] for f in fits) / len(fits) for k in ("gaze_cc", "gaze_kl"))
+    assert row_of(tune.table(), "w1").endswith(f"| 0.3 (6 x action) | 0.05 | CC {cc:.2f}, KL {kl:.2f} |")
     write_gz(dest / "train" / "gaze_s1" / "metrics.jsonl.gz", json.dumps({"step": 3000, "loss/action": 0.05}))
     with pytest.raises(
         UsageError, match="gaze_s1/metrics.jsonl: no training record with loss/action, loss/gaze_kl"
