@@ -47,9 +47,10 @@ def worker(threads: int, steps: int, batch: int, store_root: Path) -> float:
     steps per second."""
     torch.set_num_threads(threads)
     policy, opt = build(192, 4)
+    store = EpisodeStore(store_root)
     ds = EpisodeDataset(
-        EpisodeStore(store_root),
-        EpisodeStore(store_root).indices(),
+        store,
+        store.indices(),
         ["corner2"],
         policy.config.chunk,
         policy.tokenizer,

@@ -84,11 +84,16 @@ def run_sitting(sitting: Sitting) -> Path:
     """Run (or resume) the sitting's experiment, check it is the command's run and archive it; the archive."""
     if not (ROOT / GLC_ML45 / "config.json").exists():
         raise UsageError(f"the study's GLC {GLC_ML45} is not here; train it first: {GLC_COMMAND}")
-    cmd = sitting.command()
-    print(f"sitting {sitting.name}: {shlex.join([*cmd, *sitting.data_from()])}", flush=True)
-    run_experiment([*cmd, *sitting.data_from()], ROOT)
+    cmd, data_from = sitting.command(), sitting.data_from()
+    print(f"sitting {sitting.name}: {shlex.join([*cmd, *data_from])}", flush=True)
+    run_experiment([*cmd, *data_from], ROOT)
     archived_run(cmd, ROOT, sitting.archive)
     return sitting.archive
+
+
+def next_sitting() -> list[Sitting]:
+    """The first sitting not archived yet (none when every one is)."""
+    return [s for s in SITTINGS if not s.archived()][:1]
 
 
 def pool_command(study: str) -> list[str] | None:
@@ -111,11 +116,12 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{s.name}: {'archived in ' + RECORDS + '/' + s.name if s.archived() else 'not run'}")
         return 0
     try:
-        todo = [s for s in SITTINGS if s.name == a.sitting or not a.sitting and not s.archived()][:1]
-        if not a.pool and not todo:
-            print("every sitting is archived")
-        for s in [] if a.pool else todo:
-            print(f"archived in {run_sitting(s).relative_to(ROOT)}")
+        if not a.pool:
+            todo = [s for s in SITTINGS if s.name == a.sitting] if a.sitting else next_sitting()
+            if not todo:
+                print("every sitting is archived")
+            for s in todo:
+                print(f"archived in {run_sitting(s).relative_to(ROOT)}")
         for study in PRESETS:
             if (cmd := pool_command(study)) is not None:
                 subprocess.run([sys.executable, "-m", "gazereg.cli", *cmd[1:]], cwd=ROOT, check=True)

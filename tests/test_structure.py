@@ -17,16 +17,20 @@ def structure(load_script):
     return load_script("scripts/structure_facts.py")
 
 
-def test_no_import_loops_and_no_back_arrows(structure):
-    facts = structure.analyse(ROOT / "src" / "gazereg")
+@pytest.fixture(scope="module")
+def facts(structure):
+    """`analyse` of src/gazereg, once for the tests that read the package's own facts."""
+    return structure.analyse(ROOT / "src" / "gazereg")
+
+
+def test_no_import_loops_and_no_back_arrows(facts):
     assert facts["loops"] == []
     assert facts["package_loops"] == []
     assert facts["back_arrows"] == []
     assert facts["unlayered"] == []
 
 
-def test_string_imports_are_edges_of_the_package_graph(structure):
-    facts = structure.analyse(ROOT / "src" / "gazereg")
+def test_string_imports_are_edges_of_the_package_graph(facts):
     # the command tables name their modules as "module:function": those are edges the loops and layers see
     assert facts["string_imports"] >= 20
     assert "gazereg.cli -> gazereg.training.glc_cli" in facts["string_import_edges"]
@@ -35,16 +39,14 @@ def test_string_imports_are_edges_of_the_package_graph(structure):
 
 
 def test_the_core_sits_below_data_and_gaze(structure):
-    facts = structure
-    core = facts.layer_of("gazereg.patches")
+    core = structure.layer_of("gazereg.patches")
     for module in ("gazereg.heatmaps", "gazereg.aggregation", "gazereg.losses", "gazereg.metrics"):
-        assert facts.layer_of(module) == core, module
-    assert facts.layer_of("gazereg.data.dataset") > core
-    assert facts.layer_of("gazereg.gaze.priors") > facts.layer_of("gazereg.data.dataset")
+        assert structure.layer_of(module) == core, module
+    assert structure.layer_of("gazereg.data.dataset") > core
+    assert structure.layer_of("gazereg.gaze.priors") > structure.layer_of("gazereg.data.dataset")
 
 
-def test_own_imports_at_module_level_and_short_files_and_functions(structure):
-    facts = structure.analyse(ROOT / "src" / "gazereg")
+def test_own_imports_at_module_level_and_short_files_and_functions(facts):
     assert facts["function_level_imports"] == 0
     assert facts["long_files"] == []
     assert facts["long_functions"] == []

@@ -78,7 +78,8 @@ def ml45_study() -> ExperimentConfig:
     prior), glc (`GLC_ML45`'s prediction from the video) and uniform (the term without any location); 3
     training seeds, one per sitting; 50 unseen setups per task (1,000..1,049), clean; success at 3
     checkpoints on 10 setups per task (convergence). Two arms train side by side on one thread each: the
-    2 cores train more steps per second that way than with one run on both (benchmarks/bench_parallel.py, docs/speed.md).
+    2 cores train more steps per second that way than with one run on both (benchmarks/bench_parallel.py,
+    docs/speed.md).
 
         gazereg experiment --preset ml45_study --train-seeds 0 --out runs/study10-s0
         gazereg experiment --preset ml45_study --train-seeds 1 --out runs/study10-s1 --data-from runs/study10-s0

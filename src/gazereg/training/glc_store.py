@@ -262,7 +262,7 @@ def train_glc_on_store(cfg: GLCStoreTrainConfig) -> GLCStoreTrainResult:
         len(ds),
         len(split.train),
         time.perf_counter() - t0,
-        indices_text(split.heldout) if split.heldout else "none",
+        indices_text(split.heldout),
     )
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -70,7 +70,9 @@ def holdout_split(store: EpisodeStore, holdout_every: int = 5, holdout: Sequence
 
 def indices_text(indices: Sequence[int], show: int = 8) -> str:
     """Episode indices for a log line: all of them up to `show`, else their count, first and last
-    (`450 episodes, 4..2249`)."""
+    (`450 episodes, 4..2249`); `no episodes` for none."""
+    if not indices:
+        return "no episodes"
     if len(indices) <= show:
         return f"episodes {list(indices)}"
     return f"{len(indices)} episodes, {min(indices)}..{max(indices)}"
@@ -103,10 +105,12 @@ class _EpisodesGaze:
     """Gaze of several episodes, frames concatenated in episode order; episodes are read one at a time and
     not kept (each memory-mapped episode holds open files, and a store holds thousands)."""
 
-    points: list[np.ndarray]  # per episode (T, 2), normalised (u, v), NaN where not valid
-    valid: list[np.ndarray]  # per episode (T,)
-    tasks: list[str]  # per episode
-    maps: list[np.ndarray]  # per episode (T, h, w) GLC maps, when predicted
+    points: list[np.ndarray] = field(
+        default_factory=list
+    )  # per episode (T, 2), normalised (u, v), NaN = not valid
+    valid: list[np.ndarray] = field(default_factory=list)  # per episode (T,)
+    tasks: list[str] = field(default_factory=list)  # per episode
+    maps: list[np.ndarray] = field(default_factory=list)  # per episode (T, h, w) GLC maps, when predicted
     seconds: float = 0.0  # the model's time for `maps`
 
     def add(
@@ -137,7 +141,7 @@ def _gaze_of(
     size: tuple[int, int] = (0, 0),
 ) -> _EpisodesGaze:
     """`_EpisodesGaze.add` of `indices`, read one at a time (a progress line: the model takes a while)."""
-    out = _EpisodesGaze([], [], [], [])
+    out = _EpisodesGaze()
     label = "glc eval: predict" if glc is not None else "glc eval: the training episodes' gaze"
     with Progress(label, len(indices), "episodes") as bar:
         for i in indices:
