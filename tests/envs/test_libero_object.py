@@ -97,18 +97,21 @@ def test_each_suite_gets_its_expert_and_others_are_refused():
     assert isinstance(make_expert("libero_object", 0.1), ObjectExpert)
     assert type(make_expert("libero_spatial")) is SpatialExpert
     assert make_expert("libero_object", 0.1).noise == 0.1
-    assert LiberoCollector.suites == tuple(EXPERTS) == ("libero_spatial", "libero_object", "libero_goal")
-    with pytest.raises(ValueError, match="no scripted LIBERO expert for 'libero_10'"):
-        make_expert("libero_10")
+    assert LiberoCollector.suites == tuple(EXPERTS)
+    assert tuple(EXPERTS) == ("libero_spatial", "libero_object", "libero_goal", "libero_10")
+    with pytest.raises(ValueError, match="no scripted LIBERO expert for 'libero_90'"):
+        make_expert("libero_90")
     with pytest.raises(ValueError, match="puts an object 'in' another"):
         ObjectExpert().reset(
             SimpleNamespace(roles=TaskRoles("a_1", "plate_1", "on"), task="libero_spatial/0")
         )
 
 
-@pytest.mark.parametrize(("suite", "steps"), [("libero_object", 280), ("libero_goal", 300)])
+@pytest.mark.parametrize(
+    ("suite", "steps"), [("libero_object", 280), ("libero_goal", 300), ("libero_10", 520)]
+)
 def test_the_libero_suite_presets(suite, steps):
-    """`libero_object` and `libero_goal`: LIBERO-Spatial's experiment over the suite's tasks, its evaluation
+    """`libero_object`, `libero_goal` and `libero_10`: LIBERO-Spatial's experiment over the suite's tasks, its evaluation
     length, a folder of its own; demonstrations never on an evaluation setup."""
     ev = eval_presets()[f"{suite.replace('_', '-')}-25"]()
     assert ev.tasks == tuple(f"{suite}/{k}" for k in range(10))

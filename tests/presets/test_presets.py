@@ -64,8 +64,9 @@ ADDED_SINCE = {
         "ml45_study50",
         "libero_object",
         "libero_goal",
+        "libero_10",
     },
-    "evaluation budget": {"aloha-50", "libero-object-25", "libero-goal-25"},
+    "evaluation budget": {"aloha-50", "libero-object-25", "libero-goal-25", "libero-10-25"},
 }
 """presets added after the snapshot (nothing to compare them with)"""
 
@@ -127,8 +128,8 @@ def test_gazereg_presets_lists_every_preset_with_one_line(capsys):
         (
             "eval",
             "paper",
-            "['aloha-50', 'clean-10', 'clean-dim-2', 'clean-dim-noise-10', 'libero-goal-25', 'libero-object-25', "
-            "'libero-spatial-25', 'robustness-50']",
+            "['aloha-50', 'clean-10', 'clean-dim-2', 'clean-dim-noise-10', 'libero-10-25', 'libero-goal-25', "
+            "'libero-object-25', 'libero-spatial-25', 'robustness-50']",
         ),
         ("collect", "smoke", "['demos-10x50', 'demos-2x2', 'demos-3x30']"),
     ],

@@ -153,6 +153,12 @@ def libero_goal_25() -> EvalConfig:
     return libero_suite_25("libero_goal", 300)
 
 
+def libero_10_25() -> EvalConfig:
+    """LIBERO-10 task by task on initial states 25..49 (520 steps, the standard evaluations' length, clean),
+    leaving 0..24 to `gazereg collect --env libero`; one worker per core."""
+    return libero_suite_25("libero_10", 520)
+
+
 ALOHA_TASKS = ("AlohaTransferCube-v0", "AlohaInsertion-v0")
 """Gym-Aloha's two tasks, as LeRobot's `aloha` env names them (`gazereg.envs.aloha.setup.TASKS`)"""
 
@@ -189,6 +195,7 @@ def presets() -> dict[str, Callable[[], EvalConfig]]:
         "libero-spatial-25": libero_spatial_25,
         "libero-object-25": libero_object_25,
         "libero-goal-25": libero_goal_25,
+        "libero-10-25": libero_10_25,
         "aloha-50": aloha_50,
         "robustness-50": robustness_50,
     }

@@ -1,5 +1,6 @@
 """The experiment presets of the simulators other than Meta-World: LIBERO-Spatial (`libero`, its toy-size
-`libero_smoke`), LIBERO-Object (`libero_object`), LIBERO-Goal (`libero_goal`) and Gym-Aloha (`aloha`). Each runs in its simulator's lane
+`libero_smoke`), LIBERO-Object (`libero_object`), LIBERO-Goal (`libero_goal`), LIBERO-10 (`libero_10`) and Gym-Aloha
+(`aloha`). Each runs in its simulator's lane
 (scripts/libero_env.sh, scripts/aloha_lane.sh); they register in `gazereg.experiment.config.PRESETS` when this module is imported
 (the package's __init__ does), so `--preset NAME` finds them like the others.
 """
@@ -84,6 +85,14 @@ def libero_goal() -> ExperimentConfig:
     return libero_suite("libero-goal-25", Path("runs/libero_goal"))
 
 
+def libero_10() -> ExperimentConfig:
+    """LIBERO-10 (`bash scripts/libero_env.sh gazereg experiment --preset libero_10`): `libero_suite` over its 10
+    long-horizon tasks, goals of two or three conjuncts (the evaluation budget `libero-10-25`, 520 steps),
+    demonstrations by `LongExpert` (its success per task, and the tasks it fails:
+    docs/benchmarks/libero_10_expert.json, docs/libero.md)."""
+    return libero_suite("libero-10-25", Path("runs/libero_10"))
+
+
 def libero_smoke() -> ExperimentConfig:
     """Every stage of the `libero` preset at toy size (the slow test tests/envs/test_libero_experiment.py, in
     the LIBERO venv): 2 tasks, 2 demonstrations each, 4 training steps, 2 evaluation episodes of 10 steps."""
@@ -154,6 +163,7 @@ PRESETS.update(
         "libero": libero,
         "libero_object": libero_object,
         "libero_goal": libero_goal,
+        "libero_10": libero_10,
         "libero_smoke": libero_smoke,
         "aloha": aloha,
     }

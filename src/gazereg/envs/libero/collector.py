@@ -5,13 +5,15 @@
 
 Experts: LIBERO-Spatial `SpatialExpert` (a bowl onto the plate), LIBERO-Object `ObjectExpert` (an item into the
 basket), LIBERO-Goal `GoalExpert` (a plan per goal predicate: open a drawer, turn a knob, push, place;
-`gazereg.envs.libero.expert_goal`); LIBERO-10 has none yet.
+`gazereg.envs.libero.expert_goal`), LIBERO-10 `LongExpert` (a step per conjunct of the goal: open, turn on, place
+one or two objects, close a drawer or the microwave; `gazereg.envs.libero.expert_10`).
 
 The episode's task is LIBERO's task name (as `gazereg import hdf5` names LIBERO's demonstrations); its meta:
 seed, setup (suite, task index, initial state), success, fps, env, env_name, steps, expert, the expert's grasp,
 action_noise, the task's roles, the expert's gaze targets when it names them (`gaze_targets`: GoalExpert's,
-e.g. ["handle"] for a drawer; their `<name>_pos`, `<name>_uv.<camera>` and `contact.<name>` extras come with
-them, for the visuomotor gaze source), camera geometry (MuJoCo's, with `mirror_u`: the stored images are its
+e.g. ["handle"] for a drawer; LongExpert's, e.g. ["knob", "obj", "goal", "obj2", "goal2"] for LIBERO-10's two
+moka pots; their `<name>_pos`, `<name>_uv.<camera>` and `contact.<name>` extras come with them, for the
+visuomotor gaze source), camera geometry (MuJoCo's, with `mirror_u`: the stored images are its
 view mirrored left-right), state and action layouts, package versions. Importing this module does not import
 LIBERO.
 """
@@ -26,6 +28,7 @@ import numpy as np
 from gazereg.data.store import Episode
 from gazereg.envs.libero.env import ACTION_LAYOUT, STATE_LAYOUT, LiberoEnv
 from gazereg.envs.libero.expert import PickPlaceExpert, SpatialExpert
+from gazereg.envs.libero.expert_10 import LongExpert
 from gazereg.envs.libero.expert_goal import GoalExpert
 from gazereg.envs.libero.expert_object import ObjectExpert
 from gazereg.envs.libero.setup import import_libero, libero_available, resolve_task, suite_benchmark
@@ -37,6 +40,7 @@ EXPERTS: dict[str, type[PickPlaceExpert]] = {
     "libero_spatial": SpatialExpert,
     "libero_object": ObjectExpert,
     "libero_goal": GoalExpert,
+    "libero_10": LongExpert,
 }
 
 
@@ -59,8 +63,8 @@ def rollout_libero_expert(
     Returns the Episode (also when it failed: meta["success"] says) and the summary `gazereg collect` logs."""
     expert = expert or make_expert(env.suite, action_noise)
     started = False
-    # The expert's own gaze parts (GoalExpert: a drawer's handle, a knob), per frame: position (3,), touched,
-    # camera -> uv (2,).
+    # The expert's own gaze parts (GoalExpert: a drawer's handle, a knob; LongExpert: obj2, goal2 too), per
+    # frame: position (3,), touched, camera -> uv (2,).
     parts: dict[str, list[tuple[np.ndarray, bool, dict[str, np.ndarray]]]] = {}
 
     def act(obs: dict[str, Any], info: dict[str, Any]) -> np.ndarray:
@@ -107,11 +111,11 @@ class LiberoCollector:
     """`gazereg collect --env libero`: the tasks of the suites with a scripted expert (EXPERTS), each rolled out
     by its suite's.
 
-    Tasks: a suite (`libero_spatial`, `libero_object`, `libero_goal`: its 10 tasks), `libero_object/3`,
-    `libero_object/<task name>`; canonical form `<suite>/<index>`. Seed s is the task's fixed initial state
-    s % 50. Episodes are `default_max_steps` long unless `--max_steps` says otherwise (LIBERO-Spatial's
-    evaluation length; the experts finish LIBERO-Object's tasks within it too; LIBERO-Goal's need up to its 300:
-    docs/benchmarks/)."""
+    Tasks: a suite (`libero_spatial`, `libero_object`, `libero_goal`, `libero_10`: its 10 tasks),
+    `libero_object/3`, `libero_object/<task name>`; canonical form `<suite>/<index>`. Seed s is the task's fixed
+    initial state s % 50. Episodes are `default_max_steps` long unless `--max_steps` says otherwise (LIBERO-Spatial's
+    evaluation length; the experts finish LIBERO-Object's tasks within it too; LIBERO-Goal's need up to its 300,
+    LIBERO-10's up to its 520: docs/benchmarks/)."""
 
     name = "libero"
     default_cameras = ("agentview_rgb", "eye_in_hand_rgb")  # the names `gazereg import hdf5` gives them
@@ -131,7 +135,7 @@ class LiberoCollector:
             if suite not in self.suites:
                 raise ValueError(
                     f"{spec!r}: the scripted LIBERO experts cover {', '.join(self.suites)} only "
-                    "(a bowl onto the plate, an item into the basket, LIBERO-Goal's kitchen)"
+                    "(a bowl onto the plate, an item into the basket, LIBERO-Goal's kitchen, LIBERO-10's long tasks)"
                 )
             n = len(suite_benchmark(suite).get_task_names())
             out += [f"{suite}/{i}" for i in (range(n) if index is None else [index])]

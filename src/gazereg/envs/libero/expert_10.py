@@ -1,0 +1,724 @@
+"""A scripted expert for LIBERO-10 (LIBERO-Long): ten long-horizon tasks whose goals are conjunctions.
+
+    env = LiberoEnv("libero_10/2", cameras=(), max_steps=520)
+    expert = LongExpert(noise=0.0)
+    obs, info = env.reset(seed=2)
+    expert.reset(env, noise_seed=[2, 0])    # reads the task's BDDL goal, plans a step per conjunct (expert.kind)
+    action = expert(env)                    # float32 (7,) in [-1, 1], LIBERO's OSC_POSE action
+    expert.gaze_points(env)                 # {"knob": ((3,) world, touched?), "obj2": ...} parts the eyes visit
+
+Plans. Every LIBERO-10 goal is `(And p1 p2 ...)`; `plan_steps` turns the predicates into an ordered list of
+steps, each run with `GoalExpert`'s primitives (`gazereg.envs.libero.goal_primitives`) and placers
+(`gazereg.envs.libero.goal_placers`), the next planned from the scene as the previous one leaves it:
+
+    pull    `(In <object> <drawer region>)` whose drawer is closed: the drawer pulled open first
+    turn    `(TurnOn <fixture>)`: the knob turned (before any placing: nothing stands in the hand's way yet)
+    place   `(On|In <object> <target>)`, in the BDDL's order: picked up and put down; a bowl by its rim
+            (`BowlPlacer`); a mug by its rim on the side away from its handle (`MugPlacer`: the cup's centre,
+            its wall's radius and the handle found from the mug's collision boxes, the handle an obstacle for
+            the fingers' path); the moka pot by the top of its handle, the fingers closing across it
+            (`HandlePlacer`: its body is as wide as the open fingers and its lid knob keeps the palm high);
+            any other item by its footprint (`ClearItemPlacer`: ObjectExpert's grasp, the yaw also keeping the
+            palm's path down at the placement free, so that the hand does not come down on a mug already on
+            its plate; lowering ends when the item rests on something, the basket's wall or the first item).
+            Objects going to one target are spread `spread` apart along the target's longer side (two cans in
+            the basket, two moka pots on the burner); an object going into an open drawer moves towards the
+            drawer's front until it is clear of the cabinet above it (`_out_from_under`). The placers see the
+            scene through `PlaceView`: the step's object and target as roles and key points, every other object
+            and fixture (not the tables) an obstacle
+    close   `(Close <drawer region>)`: "shut": the closed fingers, pointing down and then tilted `shut_tilt`
+            into the cabinet (pointing straight down the forearm meets the cabinet's front before the drawer
+            is in), against the handle's front, pushed along the slide joint until LIBERO calls it closed.
+            `(Close <hinged fixture>)` (the microwave's door): "swing": the closed fingers against the door's
+            outer face near its free edge, moved along the door's arc about the hinge until it is closed (not
+            yet seen to work: the mug never gets into the microwave, see the limits)
+
+The plan starts once the objects rest (some of LIBERO-10's initial states drop objects from above the table:
+every object moving less than `settled` in a step, `settle_steps` at most). A step ends when its waypoints are
+done, or, placing, when the placer's retreat has lasted `retreat_steps` (the object let go). `expert.kind` joins
+the steps' kinds ("turn+place", "place+close", ...); `expert.steps` lists them.
+
+Gaze targets (`gaze_targets`, in the order the hand visits them): the first placement's object and target are
+`obj` and `goal` (the episode's key points, `env.roles`), a second placement's `obj2` and `goal2` (the goal
+"touched" once the object stands within `tolerance_goal` of it), the knob `knob`, a drawer's handle `handle`, the
+microwave's door `door` (touched: the gripper touches it).
+
+Known limits. The yellow-and-white mug cannot be put into the microwave: every grasp here comes from above,
+and a hand holding the mug by its rim or handle cannot pass under the microwave's roof (the mug is put down on
+the roof instead). The cream cheese box fails when a tall neighbour (the milk carton) stands within the palm's
+length along its narrow side: the only free yaw takes the box across its wide side, which the open fingers
+barely span, and the descending fingers push it away. The measured success per task:
+docs/benchmarks/libero_10_expert.json, rendered in docs/libero.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from gazereg.envs.libero.expert import (
+    DOWN_ALONG_Y,
+    GRIP_CLOSE,
+    GRIP_OPEN,
+    ExpertParams,
+    Plan,
+    axis_angle_of,
+    path_clearance,
+    yawed,
+)
+from gazereg.envs.libero.expert_goal import GoalExpert, GoalParams
+from gazereg.envs.libero.expert_object import YAWS, ItemShape, closing_axes
+from gazereg.envs.libero.goal_placers import BowlPlacer, ItemPlacer
+from gazereg.envs.libero.goal_primitives import Waypoint
+from gazereg.envs.libero.goal_scene import (
+    GoalShifted,
+    Joint,
+    body_boxes,
+    frame,
+    goal_predicates,
+    region_shift,
+    rot_z,
+    support_top,
+)
+from gazereg.envs.libero.scene import SUPPORTS, Boxes, TaskRoles, collision_boxes, subtree_geoms
+
+STEP_KINDS = ("pull", "turn", "place", "close")
+
+
+@dataclass(frozen=True)
+class Step:
+    """One step of a LIBERO-10 plan: kind (STEP_KINDS) and the BDDL names it acts on (a placement: object,
+    target, relation "on"/"in"; pull/close: the drawer region or the fixture; turn: the fixture)."""
+
+    kind: str
+    names: tuple[str, ...]
+
+
+def plan_steps(preds: list[list[str]], drawer_closed: Any = None) -> list[Step]:
+    """The ordered steps for a conjunction of goal predicates (`goal_predicates`: lower-cased heads).
+
+    `drawer_closed(region) -> bool | None`: whether `region` is a drawer that is now closed (None: not a drawer;
+    no callable: none is). Order: pulls, turns, placements (the BDDL's order), closes. ValueError (one line)
+    for a predicate no step handles."""
+    pulls, turns, places, closes = [], [], [], []
+    for pred in preds:
+        head = pred[0]
+        if head == "turnon" and len(pred) == 2:
+            turns.append(Step("turn", (pred[1],)))
+        elif head in ("on", "in") and len(pred) == 3:
+            if head == "in" and drawer_closed is not None and drawer_closed(pred[2]):
+                step = Step("pull", (pred[2],))
+                if step not in pulls:
+                    pulls.append(step)
+            places.append(Step("place", (pred[1], pred[2], head)))
+        elif head == "close" and len(pred) == 2:
+            closes.append(Step("close", (pred[1],)))
+        else:
+            raise ValueError(
+                f"LongExpert has no step for the goal predicate {pred} (it opens drawers, turns knobs on, "
+                f"places objects and closes drawers and doors)"
+            )
+    return pulls + turns + places + closes
+
+
+def spread_offsets(steps: list[Step], spread: float) -> list[float]:
+    """Per step, where along its target's longer side (metres from the target point) its object goes: 0 for a
+    target that takes one object, -spread/2, +spread/2, ... for several."""
+    out = []
+    for k, s in enumerate(steps):
+        if s.kind != "place":
+            out.append(0.0)
+            continue
+        same = [j for j, t in enumerate(steps) if t.kind == "place" and t.names[1] == s.names[1]]
+        n = len(same)
+        out.append(0.0 if n == 1 else (same.index(k) - (n - 1) / 2) * spread)
+    return out
+
+
+@dataclass(frozen=True)
+class LongParams(GoalParams):
+    """The LIBERO-10 expert's (metres, radians, steps); GoalExpert's and these."""
+
+    mug: ExpertParams = field(default_factory=ExpertParams)  # placing a mug by its rim (sizes from its boxes)
+    mug_wall_in: float = 0.007  # the mug's grasp point this far inside its wall's mean radius
+    mug_grip_depth: float = 0.022  # the pad centre this far under the mug's top
+    handle_out: float = 0.012  # a mug's box this far beyond its wall's radius is its handle
+    retreat_steps: int = 12  # a placement ends after this many steps of the placer's retreat
+    spread: float = 0.085  # objects to one target this far apart
+    shut_standoff: float = 0.06  # the fingertips this far in front of the handle before pushing
+    shut_extra: float = 0.02  # pushed this much beyond the closed position
+    shut_tilt: float = 0.5  # radians: the fingers pointing down, tilted by this towards the push
+    shut_low: float = 0.005  # the fingertips this far under the handle's centre
+    finger_half_width: float = 0.01  # the closed fingers' half thickness along the push
+    shut_speed: float = 0.8
+    shut_steps: int = 160  # the push ends after this many steps at the latest
+    swing_reach: float = 0.8  # pressing the door at this fraction of its width from the hinge
+    swing_gap: float = 0.035  # the pad centre this far outside the door's face before swinging it
+    swing_step: float = 0.25  # radians of the arc the hand's target leads the door by
+    swing_speed: float = 0.5
+    drawer_margin: float = 0.01  # an object put into a drawer clears the cabinet above it by this
+    drawer_shift_max: float = (
+        0.05  # and moves towards the drawer's front at most this (it stays in the region)
+    )
+    settle_steps: int = 60  # at most this many steps of waiting for dropped objects to come to rest
+    settled: float = 0.0005  # every object moved less than this in a step: at rest
+    tolerance_goal: float = 0.06  # a second placement's object this close to its target: the eyes leave it
+
+
+class MugPlacer(BowlPlacer):
+    """A mug by its rim: BowlPlacer's grasp about the cup's centre (not the mug's origin), the handle's boxes
+    an obstacle for the fingers, the pad centre `mug_grip_depth` under the rim (sizes from the mug's boxes)."""
+
+    name = "gazereg.envs.libero.expert_10.MugPlacer"
+    grip_depth = 0.022
+    wall_in = 0.007
+    handle_out = 0.012
+
+    def _plan(self, env: Any, pts: dict[str, np.ndarray], boxes: Any) -> Plan:
+        mug = env.scene_facts.geom_boxes(env.roles.obj)
+        origin = pts["obj"]
+        self._cup, radius, self._handle = cup_geometry(mug, origin, self.handle_out)
+        top = float(mug.top().max())
+        self.p = replace(
+            self.p, rim_radius=radius - self.wall_in, grasp_height=top - float(origin[2]) - self.grip_depth
+        )
+        return super()._plan(env, pts, boxes)
+
+    def _choose_grasp(self, bowl: np.ndarray, boxes: Any) -> tuple[np.ndarray, np.ndarray]:
+        cup = np.array([*self._cup, 0.0])
+        offset, rot = super()._choose_grasp(bowl + cup, Boxes.concat([boxes, self._handle]))
+        return offset + cup, rot
+
+
+def cup_geometry(boxes: Boxes, origin: np.ndarray, handle_out: float) -> tuple[np.ndarray, float, Boxes]:
+    """A mug's cup from its collision boxes: (the cup's centre from `origin`, horizontal (2,); the wall's mean
+    radius; the handle's boxes: those `handle_out` beyond the wall)."""
+    xy = boxes.centre[:, :2]
+    centre = np.median(xy, axis=0)
+    for _ in range(3):
+        d = np.linalg.norm(xy - centre, axis=1)
+        wall = d > 0.5 * float(np.median(d[d > 0.015])) if (d > 0.015).any() else d >= 0
+        radius = float(np.median(d[wall]))
+        handle = d > radius + handle_out
+        keep = ~handle
+        centre = (xy[keep].max(axis=0) + xy[keep].min(axis=0)) / 2
+    d = np.linalg.norm(xy - centre, axis=1)
+    ring = (d > 0.015) & ~handle
+    radius = float(np.median(d[ring])) if ring.any() else radius
+    h = Boxes(boxes.centre[handle], boxes.rot[handle], boxes.half[handle])
+    return centre - origin[:2], radius, h
+
+
+class ClearItemPlacer(ItemPlacer):
+    """ItemPlacer whose yaw also keeps the palm's path down at the placement free (the hand, 0.2 m long across
+    the fingers, put down next to a mug already on its plate)."""
+
+    name = "gazereg.envs.libero.expert_10.ClearItemPlacer"
+    stall_steps = 8  # lowering, the hand this many steps within `stall` of where it was: the item rests
+    stall = 0.002
+
+    def _advance(self, reached: bool, pts: dict[str, np.ndarray]) -> bool:
+        """PickPlaceExpert's, and lowering ends when the item has come to rest on something (the basket's
+        wall, the item already there) before its release height: the hand stalls."""
+        if self.phase != "lower":
+            self._lowered: list[float] = []
+        else:
+            self._lowered.append(float(pts["hand"][2]))
+            last = self._lowered[-self.stall_steps :]
+            if len(self._lowered) > self.stall_steps and max(last) - min(last) < self.stall:
+                reached = True
+        return super()._advance(reached, pts)
+
+    def _plan(self, env: Any, pts: dict[str, np.ndarray], boxes: Any) -> Plan:
+        self._place_at = (env, pts)
+        return super()._plan(env, pts, boxes)
+
+    def _choose_yaw(self, shape: ItemShape, pad: float, boxes: Any) -> tuple[float, np.ndarray]:
+        p = self.p
+        env, pts = self._place_at
+        goal, origin = pts["goal"], pts["obj"]
+        surface = support_top(env, env.roles.goal, goal[:2])
+        pad_place = surface + p.release_gap + (pad - shape.bottom)
+        palm_levels = np.arange(pad_place + p.palm_low, pad_place + p.palm_low + p.hover, 0.01)
+        place_levels = np.arange(pad_place + p.palm_low, pad_place + p.palm_low + p.hover, 0.01)
+        levels = np.arange(pad - p.tip_depth, pad + p.hover, 0.01)
+        palm_levels = np.arange(pad + p.palm_low, pad + p.palm_low + p.hover, 0.01)
+        grid = np.array([(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1)], dtype=np.float64)
+        palm_grid = np.array([(i, j) for i in (-1, -0.5, 0, 0.5, 1) for j in (-1, 0, 1)], dtype=np.float64)
+        keys, centres = [], []
+        for k, yaw in enumerate(
+            YAWS
+        ):  # ObjectExpert's choice (its module docstring), the placement's palm too
+            width, centre = shape.footprint(yaw)
+            a, perp = closing_axes(yaw)
+            paths = [
+                (centre + side * p.finger_reach * a, grid, p.finger_half, levels) for side in (1.0, -1.0)
+            ] + [(centre, palm_grid, p.palm_half, palm_levels)]
+            block, gap = -np.inf, np.inf
+            for xy0, g, half, zs in paths:
+                b, d = path_clearance(boxes, xy0 + g[:, :1] * half[0] * a + g[:, 1:] * half[1] * perp, zs)
+                block, gap = max(block, b), min(gap, d)
+            xy0 = goal[:2] + centre - origin[:2]
+            xy = xy0 + palm_grid[:, :1] * p.palm_half[0] * a + palm_grid[:, 1:] * p.palm_half[1] * perp
+            put, _ = path_clearance(boxes, xy, place_levels)
+            wide = width > p.max_width
+            key = (
+                block > -np.inf,
+                wide,
+                put > -np.inf,
+                block,
+                gap < p.min_gap,
+                round(width / p.width_step),
+                k,
+            )
+            keys.append(key)
+            centres.append(centre)
+        k = min(keys)[-1]
+        self.grasp_choice = {"yaw_deg": float(YAWS[k]), "width": float(shape.footprint(YAWS[k])[0])}
+        return float(YAWS[k]), centres[k]
+
+
+class HandlePlacer(ClearItemPlacer):
+    """An item with a handle sticking out of its body (the moka pot): held by the top of the handle, the fingers
+    closing across it (the body's top is too wide and too low for the open fingers), put down as ItemPlacer."""
+
+    name = "gazereg.envs.libero.expert_10.HandlePlacer"
+    reach = 0.065  # a box whose centre is this far from the origin (horizontally) sticks out of the body
+    pad_below = 0.01  # the pad centre this far under the handle's top
+
+    def _plan(self, env: Any, pts: dict[str, np.ndarray], boxes: Any) -> Plan:
+        plan = super()._plan(env, pts, boxes)  # the placing heights of ItemPlacer
+        item = env.scene_facts.geom_boxes(env.roles.obj)
+        grip = handle_grip(item, pts["obj"], self.reach)
+        if grip is None:
+            return plan
+        point, yaw = grip
+        p, origin = self.p, pts["obj"]
+        pad = point[2] - self.pad_below
+        above = pad - float(origin[2])
+        self.grasp_choice = {"yaw_deg": float(yaw), "handle": 1.0}
+        offset = np.array([point[0] - origin[0], point[1] - origin[1], above])
+        bounds = (above - p.hand_play, above + p.hand_play)
+        return Plan(offset, yawed(yaw), pad - ItemShape.of(item).bottom, above, bounds, plan.place_dz)
+
+
+def handle_grip(boxes: Boxes, origin: np.ndarray, reach: float) -> tuple[np.ndarray, float] | None:
+    """The top of an item's handle: (the point over the box with the highest top among those on the side of the
+    box farthest from the origin, at that top (3,); the gripper yaw (degrees, in (-90, 90]) whose fingers close
+    across the handle), or None when no box's centre is `reach` from the origin (horizontally)."""
+    rel = boxes.centre[:, :2] - origin[:2]
+    dist = np.linalg.norm(rel, axis=1)
+    if not (dist > reach).any():
+        return None
+    h = rel[int(np.argmax(dist))] / float(dist.max())  # towards the handle's far end
+    on = (rel @ h) > 0.6 * reach
+    k = np.flatnonzero(on)[int(np.argmax(boxes.top()[on]))]
+    point = np.array([*boxes.centre[k, :2], float(boxes.top()[k])])
+    # closing across the handle, along (-h_y, h_x): yawed(yaw) closes along (-sin yaw, cos yaw)
+    yaw = float(np.degrees(np.arctan2(h[1], h[0])))
+    return point, -(((-yaw) + 90.0) % 180.0 - 90.0)  # the fingers are symmetric
+
+
+class PlaceView(GoalShifted):
+    """`env` as one placement step sees it: roles (obj, goal, relation) of the step, `key_points()` of those (the
+    goal moved by `shift`), the obstacles every object and fixture but the step's object."""
+
+    def __init__(self, env: Any, obj: str, goal: str, relation: str, shift: np.ndarray):
+        super().__init__(env, shift)
+        self.roles = TaskRoles(obj=obj, goal=goal, relation=relation)
+        self.scene_facts = _Facts(env, obj)
+
+    def key_points(self) -> dict[str, np.ndarray]:
+        f = self._env.scene_facts
+        return {
+            "obj": f.position(self.roles.obj),
+            "goal": f.position(self.roles.goal) + self._shift,
+            "hand": f.hand(),
+        }
+
+
+class _Facts:
+    """`env.scene_facts` with the obstacles every object and fixture but `obj` (None: all of them)."""
+
+    def __init__(self, env: Any, obj: str | None):
+        self._env, self._facts, self._obj = env, env.scene_facts, obj
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._facts, name)
+
+    def owner(self, name: str) -> str:
+        """As SceneFacts.owner; a region of the table itself (no parent object: `..._plate_right_region`):
+        itself (`geom_boxes` gives its flat box)."""
+        o = self._facts.owner(name)
+        return o if o in self._env.unwrapped_libero.env.obj_body_id else name
+
+    def geom_boxes(self, name: str) -> Boxes:
+        """As SceneFacts.geom_boxes; a region of the table itself: its site's box, flat (no thickness)."""
+        e = self._env.unwrapped_libero.env
+        if name in e.obj_body_id:
+            return self._facts.geom_boxes(name)
+        size = np.asarray(e.object_sites_dict[name].size, dtype=np.float64)
+        M = np.asarray(e.sim.data.get_site_xmat(name), dtype=np.float64)
+        return Boxes(self._facts.position(name)[None], M[None], np.array([[size[0], size[1], 0.0]]))
+
+    def obstacles(self) -> Boxes:
+        e = self._env.unwrapped_libero.env
+        names = [n for n in (*e.objects_dict, *e.fixtures_dict) if not _support(n) and n != self._obj]
+        return Boxes.concat([self._facts.geom_boxes(n) for n in names if n in e.obj_body_id])
+
+
+class _AllObstacles(GoalShifted):
+    """`env` with every object an obstacle (for the pull, turn and close steps)."""
+
+    def __init__(self, env: Any):
+        super().__init__(env, np.zeros(3))
+        self.scene_facts = _Facts(env, None)
+
+
+class LongExpert(GoalExpert):
+    """The LIBERO-10 expert (see the module docstring): GoalExpert's primitives, a step per goal conjunct."""
+
+    name = "gazereg.envs.libero.expert_10.LongExpert"
+    params_type = LongParams
+
+    def __init__(self, noise: float = 0.0, params: LongParams | None = None):
+        super().__init__(noise, params)
+        self.steps: list[Step] = []
+        self._k = 0
+        self._offsets: list[float] = []
+        self._real: Any = None
+
+    # ----- planning -------------------------------------------------------------------------------------
+    def reset(self, env: Any, noise_seed: Any = 0) -> None:
+        """Plan `env`'s task (a LiberoEnv of a LIBERO-10 scene, just reset): the steps, then the first one."""
+        ctrl = env.unwrapped_libero.env.robots[0].controller
+        if not getattr(ctrl, "use_delta", True):
+            raise ValueError(f"{type(self).__name__} needs a delta OSC_POSE controller (LIBERO's default)")
+        self._out_max = np.abs(np.asarray(ctrl.output_max, dtype=np.float64)[:6])
+        self._ori = lambda: np.asarray(ctrl.ee_ori_mat, dtype=np.float64)
+        self._noise_seed = noise_seed
+        self.rng = np.random.default_rng(noise_seed)
+        self._real = env
+        self._waypoints, self._placer, self._parts = [], None, {}
+        self._step, self._phase_steps, self._hold = 0, 0, None
+        self.grasp_choice = {}
+        sites = env.unwrapped_libero.env.object_sites_dict
+
+        def drawer_closed(region: str) -> bool | None:
+            if not list(getattr(sites.get(region), "joints", None) or []):
+                return None
+            return not self._is_open(env, region)
+
+        self.steps = plan_steps(goal_predicates(env), drawer_closed)
+        self._offsets = spread_offsets(self.steps, self.p.spread)
+        self.kind = "+".join(s.kind for s in self.steps)
+        self.gaze_targets = self._gaze_order(env)
+        self._register_parts(env)
+        self.grasp_choice = {}
+        self._k = -1
+        self._settle: list[np.ndarray] = []
+        self.phase = "settle"
+
+    def _gaze_order(self, env: Any) -> tuple[str, ...]:
+        names: list[str] = []
+        for s in self.steps:
+            if s.kind == "place":
+                first = s.names[0] == env.roles.obj and s.names[1] == env.roles.goal
+                names += ["obj", "goal"] if first else ["obj2", "goal2"]
+            else:
+                names.append(self._part_name(env, s))
+        return tuple(dict.fromkeys(names))  # a part visited twice (the handle) counts once
+
+    def _part_name(self, env: Any, s: Step) -> str:
+        if s.kind == "turn":
+            return "knob"
+        return "handle" if s.names[0] in env.unwrapped_libero.env.object_sites_dict else "door"
+
+    def _next(self, env: Any) -> None:
+        """Start the next step (planned from the scene as it is now)."""
+        self._k += 1
+        self._waypoints, self._placer = [], None
+        self._step, self._phase_steps, self._hold = 0, 0, None
+        if self._k >= len(self.steps):
+            self.phase = "done"
+            return
+        s = self.steps[self._k]
+        self._env = _AllObstacles(env)
+        if s.kind != "place":
+            self._plan_primitive(env, self._env, s)
+        else:
+            self._start_step_placing(env, s, self._offsets[self._k])
+        self.phase = self._waypoints[0].name if self._waypoints else self._placer.phase  # type: ignore[union-attr]
+
+    def _register_parts(self, env: Any) -> None:
+        """Every step's gaze parts, from the first frame on (the collector stores one value per frame): the
+        primitives' (planned once here for their parts, planned again when their step starts) and a second
+        placement's `obj2`, `goal2`."""
+        view = _AllObstacles(env)
+        self._env = view
+        facts, tol = env.scene_facts, self.p.tolerance_goal
+        for k, s in enumerate(self.steps):
+            if s.kind == "place":
+                obj, goal, _ = s.names
+                if obj == env.roles.obj and goal == env.roles.goal:
+                    continue
+                pv = self._place_view(env, s, self._offsets[k])
+                self._parts["obj2"] = lambda o=obj: (facts.position(o), self._touches(env, _root(env, o)))
+                self._parts["goal2"] = lambda o=obj, v=pv: (
+                    v.key_points()["goal"],
+                    bool(np.linalg.norm(facts.position(o)[:2] - v.key_points()["goal"][:2]) < tol),
+                )
+            else:
+                self._plan_primitive(env, view, s)
+        self._waypoints = []
+
+    def _plan_primitive(self, env: Any, view: Any, s: Step) -> None:
+        """The waypoints of primitive step `s` (pull, turn, close), from the scene as it is now."""
+        if s.kind == "pull":
+            self._plan_pull(view, s.names[0])
+            # the wrist back to pointing down for the placing that follows
+            self._waypoints.append(Waypoint("unturn", self._held, DOWN_ALONG_Y, GRIP_OPEN, tolerance=0.025))
+        elif s.kind == "turn":
+            self._plan_turn(view, s.names[0])
+        elif s.names[0] in env.unwrapped_libero.env.object_sites_dict:
+            self._plan_shut(view, s.names[0])
+        else:
+            self._plan_swing(view, s.names[0])
+
+    def _place_view(self, env: Any, s: Step, along: float) -> PlaceView:
+        obj, goal, relation = s.names
+        shift = region_shift(env, goal, self.p.region_rise) if relation == "on" else np.zeros(3)
+        if along:
+            shift = shift + self._spread_dir(env, goal) * along
+        if relation == "in":
+            shift = shift + self._out_from_under(env, obj, goal)
+        return PlaceView(env, obj, goal, relation, shift)
+
+    def _out_from_under(self, env: Any, obj: str, region: str) -> np.ndarray:
+        """Into an open drawer: the target moved along the opening direction until the object's footprint
+        (`drawer_margin` to spare) is clear of the cabinet above the drawer (the closed drawer over it, whose
+        front lip would catch a bowl's rim), at most to `drawer_shift_max`; zero for any other target."""
+        e = env.unwrapped_libero.env
+        site = e.object_sites_dict.get(region)
+        joints = list(getattr(site, "joints", None) or [])
+        if not joints:
+            return np.zeros(3)
+        import mujoco
+
+        m = env.physics_model
+        joint = Joint.named(env, joints[0])
+        owner = env.scene_facts.owner(region)
+        ranges = e.get_object(owner).object_properties["articulation"]["default_close_ranges"]
+        u = joint.axis * np.sign(joint.value(env) - float(np.mean(ranges)))  # out of the cabinet
+        u = u / max(float(np.linalg.norm(u)), 1e-9)
+        target = env.scene_facts.position(region)
+        shape = ItemShape.of(env.scene_facts.geom_boxes(obj))
+        radius = float(
+            np.max(np.linalg.norm(shape.corners[:, :2] - env.scene_facts.position(obj)[:2], axis=1))
+        )
+        floor = support_top(env, region, target[:2])
+        root = int(m.site_bodyid[int(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, region))])
+        while int(m.body_parentid[root]) != 0 and root != int(e.obj_body_id[owner]):
+            root = int(m.body_parentid[root])
+        geoms = subtree_geoms(m, root)
+        geoms = geoms[np.asarray(m.geom_bodyid)[geoms] != joint.body]  # the cabinet but the drawer itself
+        boxes = collision_boxes(m, env.physics_data, geoms)
+        c = boxes.corners().reshape(-1, 8, 3)
+        low = c[:, :, 2].min(axis=1)
+        tall = float(shape.top - shape.bottom)
+        over = (low > floor + 0.005) & (low < floor + tall + self.p.drawer_margin)
+        if not over.any():
+            return np.zeros(3)
+        front = float((c[over] @ u).max())  # the farthest the cabinet over the drawer reaches out
+        need = front + radius + self.p.drawer_margin - float(target @ u)
+        return u * float(np.clip(need, 0.0, self.p.drawer_shift_max))
+
+    def _start_step_placing(self, env: Any, s: Step, along: float) -> None:
+        obj = s.names[0]
+        view = self._place_view(env, s, along)
+        kind = type(env.unwrapped_libero.env.get_object(obj)).__name__.lower()
+        placer: BowlPlacer | ItemPlacer
+        if "bowl" in kind or "bowl" in obj:
+            placer = BowlPlacer(self.noise, self.p.bowl)
+        elif "moka" in kind or "moka" in obj:
+            placer = HandlePlacer(self.noise, self.p.item)
+        elif "mug" in kind or "mug" in obj:
+            placer = MugPlacer(self.noise, self.p.mug)
+            placer.grip_depth, placer.wall_in = self.p.mug_grip_depth, self.p.mug_wall_in
+            placer.handle_out = self.p.handle_out
+        else:
+            placer = ClearItemPlacer(self.noise, self.p.item)
+        placer.reset(view, self._noise_seed)
+        placer.rng = self.rng  # one noise stream for the whole episode
+        self._placer, self._view = placer, view
+        self.grasp_choice = {**self.grasp_choice, **{f"{obj}.{k}": v for k, v in placer.grasp_choice.items()}}
+
+    def _spread_dir(self, env: Any, goal: str) -> np.ndarray:
+        """The horizontal unit vector (3,) along the target's longer side: a region's site box when it is not
+        square, else (a square region, an object) world x."""
+        e = env.unwrapped_libero.env
+        site = e.object_sites_dict.get(goal)
+        if site is not None and hasattr(site, "size"):
+            M = np.asarray(e.sim.data.get_site_xmat(goal), dtype=np.float64)
+            size = np.asarray(site.size, dtype=np.float64)
+            if abs(size[0] - size[1]) > 1e-3:
+                v = M[:, int(np.argmax(size[:2]))]
+                v = np.array([v[0], v[1], 0.0])
+                return v / max(float(np.linalg.norm(v)), 1e-9)
+        return np.array([1.0, 0.0, 0.0])
+
+    # ----- new primitives ---------------------------------------------------------------------------------
+    def _plan_shut(self, env: Any, region: str) -> None:
+        """Waypoints that push `region`'s drawer shut (see the module docstring, "shut")."""
+        e = env.unwrapped_libero.env
+        site = e.object_sites_dict[region]
+        owner = env.scene_facts.owner(region)
+        ranges = e.get_object(owner).object_properties["articulation"]["default_close_ranges"]
+        joint = Joint.named(env, list(site.joints)[0])
+        q0, q_goal = joint.value(env), float(np.mean(ranges))
+        u = joint.axis * np.sign(q0 - q_goal)  # the opening direction (out of the cabinet)
+        u = u / np.linalg.norm(u)
+        p = self.p
+        travel = abs(q_goal - q0) + p.shut_extra
+        boxes = body_boxes(env, joint.body)
+        k = int(np.argmax(boxes.centre @ u))
+        handle0 = boxes.centre[k].copy()
+        front = float(np.max(boxes.corners().reshape(-1, 8, 3)[k] @ u))  # the handle's front, along u
+        body = joint.body
+        xpos0 = env.physics_data.xpos[body].copy()
+        self._parts["handle"] = lambda: (
+            boxes.centre[k] + env.physics_data.xpos[body] - xpos0,
+            self._touches(env, body),
+        )
+        # the closed fingers (pointing down, closing across the push) against the handle's front
+        closing = np.cross(np.array([0.0, 0.0, 1.0]), u)[:2]
+        closing3 = np.array([*closing, 0.0]) / max(float(np.linalg.norm(closing)), 1e-9)
+        rots = [frame(np.array([0.0, 0.0, -1.0]), sgn * closing3) for sgn in (1.0, -1.0)]
+        now = self._ori()  # of the two, the one the wrist reaches with the least turn from where it is
+        R = min(rots, key=lambda r: np.linalg.norm(axis_angle_of(r @ now.T)))
+        # then tilted `shut_tilt` about the closing axis, the fingertips leading into the cabinet: the forearm
+        # stays back from the cabinet's front
+        t = p.shut_tilt * float(np.sign(np.cross(R[:, 0], np.array([0.0, 0.0, -1.0])) @ -u) or 1.0)
+        R_tilt = _rot_about(R[:, 0], t) @ R
+        pad_z = float(handle0[2]) + p.finger_tip - p.shut_low
+        along = handle0 + u * (front - float(handle0 @ u))  # the handle's front face, at its centre
+        start = np.array([*(along + u * p.shut_standoff)[:2], pad_z])
+        press = np.array([*(along + u * p.finger_half_width)[:2], pad_z])
+        hand0 = env.key_points()["hand"]
+        high = max(self._travel_z(hand0, start, p.tip_depth), pad_z + p.hover)
+
+        def shut() -> bool:
+            return bool(e.object_states_dict[region].is_close())
+
+        via = p.via_tolerance
+        self._waypoints = [
+            Waypoint("rise", lambda pts: np.array([*pts["hand"][:2], high]), R, GRIP_CLOSE, tolerance=via),
+            Waypoint("over", lambda pts: np.array([*start[:2], high]), R, GRIP_CLOSE, tolerance=via),
+            Waypoint("down", lambda pts: start, R, GRIP_CLOSE),
+            Waypoint("tilt", lambda pts: start, R_tilt, GRIP_CLOSE, rot_speed=0.5),
+            Waypoint(
+                "push",
+                lambda pts: press - u * travel,
+                R_tilt,
+                GRIP_CLOSE,
+                p.shut_speed,
+                steps=p.shut_steps,
+                done=shut,
+            ),
+            Waypoint("back_off", lambda pts: self._held(pts, u * 0.06), R_tilt, GRIP_CLOSE, tolerance=via),
+        ]
+
+    def _plan_swing(self, env: Any, fixture: str) -> None:
+        """Waypoints that swing `fixture`'s hinged door shut (see the module docstring, "swing")."""
+        e = env.unwrapped_libero.env
+        obj = e.get_object(fixture)
+        ranges = obj.object_properties["articulation"]["default_close_ranges"]
+        joint = Joint.named(env, list(obj.joints)[0])
+        q0, q_goal = joint.value(env), float(np.mean(ranges))
+        sign = float(np.sign(joint.axis[2])) or 1.0
+        turn = sign * (q_goal - q0)  # the door's world yaw change to close it
+        p = self.p
+        door = body_boxes(env, joint.body)
+        hinge = joint.anchor
+        corners = door.corners()
+        rel = corners[:, :2] - hinge[:2]
+        far = rel[int(np.argmax(np.linalg.norm(rel, axis=1)))]
+        width = float(np.linalg.norm(far))
+        r_dir = far / max(width, 1e-9)
+        # the face the door sweeps towards when closing: the side the rotation moves the door's points to
+        t_dir = np.sign(turn) * np.array([-r_dir[1], r_dir[0]])
+        thick = float(np.max(-(rel @ t_dir)))  # the door's extent behind (against the sweep)
+        z = float(np.clip(hinge[2], door.centre[:, 2].min(), door.centre[:, 2].max()))
+        r = p.swing_reach * width
+        body = joint.body
+        self._parts["door"] = lambda: (
+            np.array([*(hinge[:2] + rot_z(sign * (joint.value(env) - q0))[:2, :2] @ (r_dir * r)), z]),
+            self._touches(env, body),
+        )
+        start = np.array([*(hinge[:2] + r_dir * r - t_dir * (thick + p.swing_gap)), z])
+        hand0 = env.key_points()["hand"]
+        high = max(self._travel_z(hand0, start, p.tip_depth), z + p.hover)
+
+        def swing_target(pts: dict[str, np.ndarray]) -> np.ndarray:
+            ang = sign * (joint.value(env) - q0) + np.sign(turn) * p.swing_step
+            ang = float(np.clip(ang, min(0.0, turn), max(0.0, turn)))
+            v = rot_z(ang)[:2, :2] @ (r_dir * r - t_dir * (thick + p.swing_gap * 0.3))
+            return np.array([*(hinge[:2] + v), z])
+
+        def closed() -> bool:
+            return bool(e.object_states_dict[fixture].is_close())
+
+        via = p.via_tolerance
+        R = DOWN_ALONG_Y
+        self._waypoints = [
+            Waypoint("rise", lambda pts: np.array([*pts["hand"][:2], high]), R, GRIP_CLOSE, tolerance=via),
+            Waypoint("over", lambda pts: np.array([*start[:2], high]), R, GRIP_CLOSE, tolerance=via),
+            Waypoint("down", lambda pts: start, R, GRIP_CLOSE),
+            Waypoint("swing", swing_target, R, GRIP_CLOSE, p.swing_speed, done=closed, steps=150),
+            Waypoint("up", lambda pts: self._held(pts, np.array([0, 0, p.retreat_height])), R, GRIP_CLOSE),
+        ]
+
+    # ----- control --------------------------------------------------------------------------------------
+    def _step_done(self) -> bool:
+        if self._placer is not None:
+            return self._placer.phase == "retreat" and self._placer._phase_steps >= self.p.retreat_steps
+        return self._step >= len(self._waypoints)
+
+    def __call__(self, env: Any) -> np.ndarray:
+        """The action (7,) for `env`'s current state; advances the plan, step by step."""
+        if self._ori is None:
+            raise RuntimeError("call reset(env, noise_seed) after env.reset() before asking for actions")
+        if self._k < 0:  # LIBERO-10's initial states drop some objects: the plan waits until they rest
+            e = env.unwrapped_libero.env
+            pos = np.array([env.scene_facts.position(n) for n in e.objects_dict if n in e.obj_body_id])
+            self._settle.append(pos)
+            moving = (
+                len(self._settle) < 2 or np.abs(self._settle[-1] - self._settle[-2]).max() > self.p.settled
+            )
+            if moving and len(self._settle) <= self.p.settle_steps:
+                return np.array([0, 0, 0, 0, 0, 0, GRIP_OPEN], dtype=np.float32)
+            self._next(env)
+        while self._k < len(self.steps) and self._step_done():
+            self._next(env)
+        if self._k >= len(self.steps):
+            return np.array([0, 0, 0, 0, 0, 0, GRIP_OPEN], dtype=np.float32)
+        return super().__call__(env)
+
+
+def _rot_about(axis: np.ndarray, angle: float) -> np.ndarray:
+    """The rotation (3, 3) by `angle` radians about the unit vector `axis` (Rodrigues)."""
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
+
+
+def _support(name: str) -> bool:
+    """A table or the floor (LIBERO's SUPPORTS, and LIBERO-10's `living_room_table`, `study_table`, ...): what
+    objects stand on, not an obstacle."""
+    return name in SUPPORTS or name.endswith("_table")
+
+
+def _root(env: Any, name: str) -> int:
+    """The MuJoCo body id of object `name`'s root."""
+    return int(env.unwrapped_libero.env.obj_body_id[name])
