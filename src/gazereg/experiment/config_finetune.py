@@ -67,7 +67,7 @@ GLC_ML45 = Path("runs/glc-ml45/final")
 task's (`gazereg glc train --store runs/pretrain/demos --gaze-source visuomotor --out runs/glc-ml45`;
 docs/pretraining.md); not committed (14 MB), rebuilt by that command"""
 
-STUDY_GAZE = GazeConfig(weight=1e-3, queries="both", layers=(-2, -1))
+STUDY_GAZE = GazeConfig(weight=1e-3, queries="both", layers=(3,))
 """The gaze term the tuning chose on validation setups (docs/tuning/finetune.md, "Chosen"): weight, query set
 and layers; every gaze-term arm of the study uses it, the controls at the same weight"""
 
