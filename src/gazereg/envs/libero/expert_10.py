@@ -69,7 +69,7 @@ from gazereg.envs.libero.expert import (
     yawed,
 )
 from gazereg.envs.libero.expert_goal import GoalExpert, GoalParams
-from gazereg.envs.libero.expert_object import YAWS, ItemShape, closing_axes
+from gazereg.envs.libero.expert_object import PALM_GRID, ItemShape
 from gazereg.envs.libero.goal_placers import BowlPlacer, ItemPlacer
 from gazereg.envs.libero.goal_primitives import Waypoint
 from gazereg.envs.libero.goal_scene import (
@@ -241,43 +241,29 @@ class ClearItemPlacer(ItemPlacer):
         goal, origin = pts["goal"], pts["obj"]
         surface = support_top(env, env.roles.goal, goal[:2])
         pad_place = surface + p.release_gap + (pad - shape.bottom)
-        palm_levels = np.arange(pad_place + p.palm_low, pad_place + p.palm_low + p.hover, 0.01)
         place_levels = np.arange(pad_place + p.palm_low, pad_place + p.palm_low + p.hover, 0.01)
-        levels = np.arange(pad - p.tip_depth, pad + p.hover, 0.01)
-        palm_levels = np.arange(pad + p.palm_low, pad + p.palm_low + p.hover, 0.01)
-        grid = np.array([(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1)], dtype=np.float64)
-        palm_grid = np.array([(i, j) for i in (-1, -0.5, 0, 0.5, 1) for j in (-1, 0, 1)], dtype=np.float64)
-        keys, centres = [], []
-        for k, yaw in enumerate(
-            YAWS
-        ):  # ObjectExpert's choice (its module docstring), the placement's palm too
-            width, centre = shape.footprint(yaw)
-            a, perp = closing_axes(yaw)
-            paths = [
-                (centre + side * p.finger_reach * a, grid, p.finger_half, levels) for side in (1.0, -1.0)
-            ] + [(centre, palm_grid, p.palm_half, palm_levels)]
-            block, gap = -np.inf, np.inf
-            for xy0, g, half, zs in paths:
-                b, d = path_clearance(boxes, xy0 + g[:, :1] * half[0] * a + g[:, 1:] * half[1] * perp, zs)
-                block, gap = max(block, b), min(gap, d)
-            xy0 = goal[:2] + centre - origin[:2]
-            xy = xy0 + palm_grid[:, :1] * p.palm_half[0] * a + palm_grid[:, 1:] * p.palm_half[1] * perp
-            put, _ = path_clearance(boxes, xy, place_levels)
-            wide = width > p.max_width
-            key = (
-                block > -np.inf,
-                wide,
-                put > -np.inf,
-                block,
-                gap < p.min_gap,
-                round(width / p.width_step),
-                k,
+        grasps = self._yaw_grasps(shape, pad, boxes)  # ObjectExpert's choice (its module docstring) ...
+        keys = []
+        for k, g in enumerate(grasps):  # ... the placement's palm path down clear too
+            xy0 = goal[:2] + g.centre - origin[:2]
+            xy = (
+                xy0
+                + PALM_GRID[:, :1] * p.palm_half[0] * g.along
+                + PALM_GRID[:, 1:] * p.palm_half[1] * g.across
             )
-            keys.append(key)
-            centres.append(centre)
-        k = min(keys)[-1]
-        self.grasp_choice = {"yaw_deg": float(YAWS[k]), "width": float(shape.footprint(YAWS[k])[0])}
-        return float(YAWS[k]), centres[k]
+            put, _ = path_clearance(boxes, xy, place_levels)
+            keys.append(
+                (
+                    g.block > -np.inf,
+                    g.width > p.max_width,
+                    put > -np.inf,
+                    g.block,
+                    g.gap < p.min_gap,
+                    round(g.width / p.width_step),
+                    k,
+                )
+            )
+        return self._take_yaw(keys, grasps)
 
 
 class HandlePlacer(ClearItemPlacer):
@@ -393,17 +379,8 @@ class LongExpert(GoalExpert):
     # ----- planning -------------------------------------------------------------------------------------
     def reset(self, env: Any, noise_seed: Any = 0) -> None:
         """Plan `env`'s task (a LiberoEnv of a LIBERO-10 scene, just reset): the steps, then the first one."""
-        ctrl = env.unwrapped_libero.env.robots[0].controller
-        if not getattr(ctrl, "use_delta", True):
-            raise ValueError(f"{type(self).__name__} needs a delta OSC_POSE controller (LIBERO's default)")
-        self._out_max = np.abs(np.asarray(ctrl.output_max, dtype=np.float64)[:6])
-        self._ori = lambda: np.asarray(ctrl.ee_ori_mat, dtype=np.float64)
-        self._noise_seed = noise_seed
-        self.rng = np.random.default_rng(noise_seed)
+        self._start_episode(env, noise_seed)
         self._real = env
-        self._waypoints, self._placer, self._parts = [], None, {}
-        self._step, self._phase_steps, self._hold = 0, 0, None
-        self.grasp_choice = {}
         sites = env.unwrapped_libero.env.object_sites_dict
 
         def drawer_closed(region: str) -> bool | None:
@@ -572,14 +549,8 @@ class LongExpert(GoalExpert):
     # ----- new primitives ---------------------------------------------------------------------------------
     def _plan_shut(self, env: Any, region: str) -> None:
         """Waypoints that push `region`'s drawer shut (see the module docstring, "shut")."""
-        e = env.unwrapped_libero.env
-        site = e.object_sites_dict[region]
-        owner = env.scene_facts.owner(region)
-        ranges = e.get_object(owner).object_properties["articulation"]["default_close_ranges"]
-        joint = Joint.named(env, list(site.joints)[0])
-        q0, q_goal = joint.value(env), float(np.mean(ranges))
-        u = joint.axis * np.sign(q0 - q_goal)  # the opening direction (out of the cabinet)
-        u = u / np.linalg.norm(u)
+        joint, q0, q_goal, towards = self._drawer_slide(env, region, "default_close_ranges")
+        u = -towards  # the opening direction (out of the cabinet)
         p = self.p
         travel = abs(q_goal - q0) + p.shut_extra
         boxes = body_boxes(env, joint.body)
@@ -610,7 +581,7 @@ class LongExpert(GoalExpert):
         high = max(self._travel_z(hand0, start, p.tip_depth), pad_z + p.hover)
 
         def shut() -> bool:
-            return bool(e.object_states_dict[region].is_close())
+            return bool(env.unwrapped_libero.env.object_states_dict[region].is_close())
 
         via = p.via_tolerance
         self._waypoints = [

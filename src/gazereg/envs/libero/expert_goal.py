@@ -118,8 +118,10 @@ class GoalExpert(GoalPrimitives, PickPlaceExpert):
         self.gaze_targets: tuple[str, ...] = ("obj", "goal")
 
     # ----- planning -------------------------------------------------------------------------------------
-    def reset(self, env: Any, noise_seed: Any = 0) -> None:
-        """Plan `env`'s task (a LiberoEnv of LIBERO-Goal's scene, just reset) from its goal predicates."""
+    def _start_episode(self, env: Any, noise_seed: Any) -> None:
+        """What every plan starts from: the arm controller's action limits and orientation (a delta OSC_POSE
+        controller, ValueError otherwise), the episode's noise stream, no waypoints, placer, gaze parts or
+        grasp yet."""
         ctrl = env.unwrapped_libero.env.robots[0].controller
         if not getattr(ctrl, "use_delta", True):
             raise ValueError(f"{type(self).__name__} needs a delta OSC_POSE controller (LIBERO's default)")
@@ -127,10 +129,14 @@ class GoalExpert(GoalPrimitives, PickPlaceExpert):
         self._ori = lambda: np.asarray(ctrl.ee_ori_mat, dtype=np.float64)
         self._noise_seed = noise_seed
         self.rng = np.random.default_rng(noise_seed)
-        self._env = env
         self._waypoints, self._placer, self._parts = [], None, {}
         self._step, self._phase_steps, self._hold = 0, 0, None
         self.grasp_choice = {}
+
+    def reset(self, env: Any, noise_seed: Any = 0) -> None:
+        """Plan `env`'s task (a LiberoEnv of LIBERO-Goal's scene, just reset) from its goal predicates."""
+        self._start_episode(env, noise_seed)
+        self._env = env
         preds = goal_predicates(env)
         if len(preds) != 1:
             raise ValueError(f"GoalExpert plans one goal predicate; task {env.task!r} has {preds}")

@@ -32,7 +32,7 @@ Measured success: `benchmarks/bench_libero.py --suite libero_object --expert-ini
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -84,6 +84,29 @@ class ItemShape:
         return float(along.max() - along.min()), centre
 
 
+FINGER_GRID = np.array([(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1)], dtype=np.float64)
+"""(9, 2) points across a fingertip's pad, in units of its half extents (along, across the closing axis)"""
+PALM_GRID = np.array([(i, j) for i in (-1, -0.5, 0, 0.5, 1) for j in (-1, 0, 1)], dtype=np.float64)
+"""(15, 2) points across the palm, in units of its half extents"""
+
+
+class YawGrasp(NamedTuple):
+    """One of YAWS's grasps of an item (`ObjectExpert._yaw_grasps`)."""
+
+    width: float
+    """the item's footprint across the closing axis, metres"""
+    centre: np.ndarray
+    """(2,) the footprint's centre, world"""
+    along: np.ndarray
+    """(2,) the closing axis (`closing_axes`)"""
+    across: np.ndarray
+    """(2,) perpendicular to it"""
+    block: float
+    """the highest top blocking the fingers' or palm's path down, -inf if none (`path_clearance`)"""
+    gap: float
+    """the narrowest gap to the boxes beside the path"""
+
+
 def closing_axes(yaw_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """The fingers' closing axis (2,) of gripper yaw `yaw_deg` (the columns of `yawed`) and its perpendicular."""
     a = np.array([-np.sin(np.radians(yaw_deg)), np.cos(np.radians(yaw_deg))])
@@ -120,28 +143,47 @@ class ObjectExpert(PickPlaceExpert):
             place_dz,
         )
 
-    def _choose_yaw(self, shape: ItemShape, pad: float, boxes: Any) -> tuple[float, np.ndarray]:
-        """(gripper yaw, degrees; the grasp centre (2,), world): see the module docstring's Grasp."""
+    def _yaw_grasps(self, shape: ItemShape, pad: float, boxes: Any) -> list[YawGrasp]:
+        """Each of YAWS's grasps of `shape` with the pad centre at height `pad` (metres, world): its footprint,
+        closing axes, and how the fingers' and the palm's paths down clear `boxes` (`path_clearance`)."""
         p = self.p
         levels = np.arange(pad - p.tip_depth, pad + p.hover, 0.01)
         palm_levels = np.arange(pad + p.palm_low, pad + p.palm_low + p.hover, 0.01)
-        grid = np.array([(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1)], dtype=np.float64)
-        palm_grid = np.array([(i, j) for i in (-1, -0.5, 0, 0.5, 1) for j in (-1, 0, 1)], dtype=np.float64)
-        keys, centres = [], []
-        for k, yaw in enumerate(YAWS):
+        grasps = []
+        for yaw in YAWS:
             width, centre = shape.footprint(yaw)
             a, perp = closing_axes(yaw)
             paths = [
-                (centre + side * p.finger_reach * a, grid, p.finger_half, levels) for side in (1.0, -1.0)
-            ] + [(centre, palm_grid, p.palm_half, palm_levels)]
+                (centre + side * p.finger_reach * a, FINGER_GRID, p.finger_half, levels)
+                for side in (1.0, -1.0)
+            ] + [(centre, PALM_GRID, p.palm_half, palm_levels)]
             block, gap = -np.inf, np.inf
             for xy0, g, half, zs in paths:
                 xy = xy0 + g[:, :1] * half[0] * a + g[:, 1:] * half[1] * perp
                 b, d = path_clearance(boxes, xy, zs)
                 block, gap = max(block, b), min(gap, d)
-            wide = width > p.max_width
-            keys.append((block > -np.inf, wide, block, gap < p.min_gap, round(width / p.width_step), k))
-            centres.append(centre)
+            grasps.append(YawGrasp(width, centre, a, perp, block, gap))
+        return grasps
+
+    def _take_yaw(self, keys: list[tuple[Any, ...]], grasps: list[YawGrasp]) -> tuple[float, np.ndarray]:
+        """The grasp whose key (ending in its index into YAWS) is the least: (yaw, degrees; its centre (2,))."""
         k = min(keys)[-1]
-        self.grasp_choice = {"yaw_deg": float(YAWS[k]), "width": float(shape.footprint(YAWS[k])[0])}
-        return float(YAWS[k]), centres[k]
+        self.grasp_choice = {"yaw_deg": float(YAWS[k]), "width": float(grasps[k].width)}
+        return float(YAWS[k]), grasps[k].centre
+
+    def _choose_yaw(self, shape: ItemShape, pad: float, boxes: Any) -> tuple[float, np.ndarray]:
+        """(gripper yaw, degrees; the grasp centre (2,), world): see the module docstring's Grasp."""
+        p = self.p
+        grasps = self._yaw_grasps(shape, pad, boxes)
+        keys = [
+            (
+                g.block > -np.inf,
+                g.width > p.max_width,
+                g.block,
+                g.gap < p.min_gap,
+                round(g.width / p.width_step),
+                k,
+            )
+            for k, g in enumerate(grasps)
+        ]
+        return self._take_yaw(keys, grasps)

@@ -83,16 +83,22 @@ class GoalPrimitives:
         boxes = self._env.scene_facts.obstacles()
         return corridor_top(boxes, a, b, self.p.corridor) + self.p.clearance + hang
 
-    def _plan_pull(self, env: Any, region: str) -> None:
-        """Waypoints that pull `region`'s drawer open (see the module docstring, "pull")."""
+    def _drawer_slide(self, env: Any, region: str, ranges: str) -> tuple[Joint, float, float, np.ndarray]:
+        """`region`'s drawer: its slide joint, the joint's value now and its goal (the middle of the cabinet's
+        articulation `ranges`: "default_open_ranges" or "default_close_ranges"), and the unit direction (3,),
+        world, the drawer moves in to reach the goal."""
         e = env.unwrapped_libero.env
         site = e.object_sites_dict[region]
         owner = env.scene_facts.owner(region)
-        ranges = e.get_object(owner).object_properties["articulation"]["default_open_ranges"]
+        goal_range = e.get_object(owner).object_properties["articulation"][ranges]
         joint = Joint.named(env, list(site.joints)[0])
-        q0, q_goal = joint.value(env), float(np.mean(ranges))
+        q0, q_goal = joint.value(env), float(np.mean(goal_range))
         u = joint.axis * np.sign(q_goal - q0)
-        u = u / np.linalg.norm(u)
+        return joint, q0, q_goal, u / np.linalg.norm(u)
+
+    def _plan_pull(self, env: Any, region: str) -> None:
+        """Waypoints that pull `region`'s drawer open (see the module docstring, "pull")."""
+        joint, q0, q_goal, u = self._drawer_slide(env, region, "default_open_ranges")
         travel = abs(q_goal - q0) + self.p.pull_extra
         boxes = body_boxes(env, joint.body)
         k = int(np.argmax(boxes.centre @ u))
