@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from gazereg.envs.libero.collector import EXPERTS, make_expert
-from gazereg.envs.libero.expert_10 import LongExpert, Step, cup_geometry, plan_steps, spread_offsets
+from gazereg.envs.libero.expert_10 import LongExpert, Step, plan_steps, spread_offsets
+from gazereg.envs.libero.long_placers import cup_geometry
 from gazereg.envs.libero.scene import Boxes
 
 # LIBERO-10's goals as `goal_predicates` reads them from the BDDL files, in the suite's task order.

@@ -53,36 +53,29 @@ docs/benchmarks/libero_10_expert.json, rendered in docs/libero.md.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from gazereg.envs.libero.expert import (
     DOWN_ALONG_Y,
-    GRIP_CLOSE,
     GRIP_OPEN,
     ExpertParams,
-    Plan,
-    axis_angle_of,
-    path_clearance,
-    yawed,
 )
 from gazereg.envs.libero.expert_goal import GoalExpert, GoalParams
-from gazereg.envs.libero.expert_object import PALM_GRID, ItemShape
+from gazereg.envs.libero.expert_object import ItemShape
 from gazereg.envs.libero.goal_placers import BowlPlacer, ItemPlacer
 from gazereg.envs.libero.goal_primitives import Waypoint
 from gazereg.envs.libero.goal_scene import (
-    GoalShifted,
     Joint,
-    body_boxes,
-    frame,
     goal_predicates,
     region_shift,
-    rot_z,
     support_top,
 )
-from gazereg.envs.libero.scene import SUPPORTS, Boxes, TaskRoles, collision_boxes, subtree_geoms
+from gazereg.envs.libero.long_placers import AllObstacles, ClearItemPlacer, HandlePlacer, MugPlacer, PlaceView
+from gazereg.envs.libero.long_primitives import LongPrimitives
+from gazereg.envs.libero.scene import collision_boxes, subtree_geoms
 
 STEP_KINDS = ("pull", "turn", "place", "close")
 
@@ -167,203 +160,7 @@ class LongParams(GoalParams):
     tolerance_goal: float = 0.06  # a second placement's object this close to its target: the eyes leave it
 
 
-class MugPlacer(BowlPlacer):
-    """A mug by its rim: BowlPlacer's grasp about the cup's centre (not the mug's origin), the handle's boxes
-    an obstacle for the fingers, the pad centre `mug_grip_depth` under the rim (sizes from the mug's boxes)."""
-
-    name = "gazereg.envs.libero.expert_10.MugPlacer"
-    grip_depth = 0.022
-    wall_in = 0.007
-    handle_out = 0.012
-
-    def _plan(self, env: Any, pts: dict[str, np.ndarray], boxes: Any) -> Plan:
-        mug = env.scene_facts.geom_boxes(env.roles.obj)
-        origin = pts["obj"]
-        self._cup, radius, self._handle = cup_geometry(mug, origin, self.handle_out)
-        top = float(mug.top().max())
-        self.p = replace(
-            self.p, rim_radius=radius - self.wall_in, grasp_height=top - float(origin[2]) - self.grip_depth
-        )
-        return super()._plan(env, pts, boxes)
-
-    def _choose_grasp(self, bowl: np.ndarray, boxes: Any) -> tuple[np.ndarray, np.ndarray]:
-        cup = np.array([*self._cup, 0.0])
-        offset, rot = super()._choose_grasp(bowl + cup, Boxes.concat([boxes, self._handle]))
-        return offset + cup, rot
-
-
-def cup_geometry(boxes: Boxes, origin: np.ndarray, handle_out: float) -> tuple[np.ndarray, float, Boxes]:
-    """A mug's cup from its collision boxes: (the cup's centre from `origin`, horizontal (2,); the wall's mean
-    radius; the handle's boxes: those `handle_out` beyond the wall)."""
-    xy = boxes.centre[:, :2]
-    centre = np.median(xy, axis=0)
-    for _ in range(3):
-        d = np.linalg.norm(xy - centre, axis=1)
-        wall = d > 0.5 * float(np.median(d[d > 0.015])) if (d > 0.015).any() else d >= 0
-        radius = float(np.median(d[wall]))
-        handle = d > radius + handle_out
-        keep = ~handle
-        centre = (xy[keep].max(axis=0) + xy[keep].min(axis=0)) / 2
-    d = np.linalg.norm(xy - centre, axis=1)
-    ring = (d > 0.015) & ~handle
-    radius = float(np.median(d[ring])) if ring.any() else radius
-    h = Boxes(boxes.centre[handle], boxes.rot[handle], boxes.half[handle])
-    return centre - origin[:2], radius, h
-
-
-class ClearItemPlacer(ItemPlacer):
-    """ItemPlacer whose yaw also keeps the palm's path down at the placement free (the hand, 0.2 m long across
-    the fingers, put down next to a mug already on its plate)."""
-
-    name = "gazereg.envs.libero.expert_10.ClearItemPlacer"
-    stall_steps = 8  # lowering, the hand this many steps within `stall` of where it was: the item rests
-    stall = 0.002
-
-    def _advance(self, reached: bool, pts: dict[str, np.ndarray]) -> bool:
-        """PickPlaceExpert's, and lowering ends when the item has come to rest on something (the basket's
-        wall, the item already there) before its release height: the hand stalls."""
-        if self.phase != "lower":
-            self._lowered: list[float] = []
-        else:
-            self._lowered.append(float(pts["hand"][2]))
-            last = self._lowered[-self.stall_steps :]
-            if len(self._lowered) > self.stall_steps and max(last) - min(last) < self.stall:
-                reached = True
-        return super()._advance(reached, pts)
-
-    def _plan(self, env: Any, pts: dict[str, np.ndarray], boxes: Any) -> Plan:
-        self._place_at = (env, pts)
-        return super()._plan(env, pts, boxes)
-
-    def _choose_yaw(self, shape: ItemShape, pad: float, boxes: Any) -> tuple[float, np.ndarray]:
-        p = self.p
-        env, pts = self._place_at
-        goal, origin = pts["goal"], pts["obj"]
-        surface = support_top(env, env.roles.goal, goal[:2])
-        pad_place = surface + p.release_gap + (pad - shape.bottom)
-        place_levels = np.arange(pad_place + p.palm_low, pad_place + p.palm_low + p.hover, 0.01)
-        grasps = self._yaw_grasps(shape, pad, boxes)  # ObjectExpert's choice (its module docstring) ...
-        keys = []
-        for k, g in enumerate(grasps):  # ... the placement's palm path down clear too
-            xy0 = goal[:2] + g.centre - origin[:2]
-            xy = (
-                xy0
-                + PALM_GRID[:, :1] * p.palm_half[0] * g.along
-                + PALM_GRID[:, 1:] * p.palm_half[1] * g.across
-            )
-            put, _ = path_clearance(boxes, xy, place_levels)
-            keys.append(
-                (
-                    g.block > -np.inf,
-                    g.width > p.max_width,
-                    put > -np.inf,
-                    g.block,
-                    g.gap < p.min_gap,
-                    round(g.width / p.width_step),
-                    k,
-                )
-            )
-        return self._take_yaw(keys, grasps)
-
-
-class HandlePlacer(ClearItemPlacer):
-    """An item with a handle sticking out of its body (the moka pot): held by the top of the handle, the fingers
-    closing across it (the body's top is too wide and too low for the open fingers), put down as ItemPlacer."""
-
-    name = "gazereg.envs.libero.expert_10.HandlePlacer"
-    reach = 0.065  # a box whose centre is this far from the origin (horizontally) sticks out of the body
-    pad_below = 0.01  # the pad centre this far under the handle's top
-
-    def _plan(self, env: Any, pts: dict[str, np.ndarray], boxes: Any) -> Plan:
-        plan = super()._plan(env, pts, boxes)  # the placing heights of ItemPlacer
-        item = env.scene_facts.geom_boxes(env.roles.obj)
-        grip = handle_grip(item, pts["obj"], self.reach)
-        if grip is None:
-            return plan
-        point, yaw = grip
-        p, origin = self.p, pts["obj"]
-        pad = point[2] - self.pad_below
-        above = pad - float(origin[2])
-        self.grasp_choice = {"yaw_deg": float(yaw), "handle": 1.0}
-        offset = np.array([point[0] - origin[0], point[1] - origin[1], above])
-        bounds = (above - p.hand_play, above + p.hand_play)
-        return Plan(offset, yawed(yaw), pad - ItemShape.of(item).bottom, above, bounds, plan.place_dz)
-
-
-def handle_grip(boxes: Boxes, origin: np.ndarray, reach: float) -> tuple[np.ndarray, float] | None:
-    """The top of an item's handle: (the point over the box with the highest top among those on the side of the
-    box farthest from the origin, at that top (3,); the gripper yaw (degrees, in (-90, 90]) whose fingers close
-    across the handle), or None when no box's centre is `reach` from the origin (horizontally)."""
-    rel = boxes.centre[:, :2] - origin[:2]
-    dist = np.linalg.norm(rel, axis=1)
-    if not (dist > reach).any():
-        return None
-    h = rel[int(np.argmax(dist))] / float(dist.max())  # towards the handle's far end
-    on = (rel @ h) > 0.6 * reach
-    k = np.flatnonzero(on)[int(np.argmax(boxes.top()[on]))]
-    point = np.array([*boxes.centre[k, :2], float(boxes.top()[k])])
-    # closing across the handle, along (-h_y, h_x): yawed(yaw) closes along (-sin yaw, cos yaw)
-    yaw = float(np.degrees(np.arctan2(h[1], h[0])))
-    return point, -(((-yaw) + 90.0) % 180.0 - 90.0)  # the fingers are symmetric
-
-
-class PlaceView(GoalShifted):
-    """`env` as one placement step sees it: roles (obj, goal, relation) of the step, `key_points()` of those (the
-    goal moved by `shift`), the obstacles every object and fixture but the step's object."""
-
-    def __init__(self, env: Any, obj: str, goal: str, relation: str, shift: np.ndarray):
-        super().__init__(env, shift)
-        self.roles = TaskRoles(obj=obj, goal=goal, relation=relation)
-        self.scene_facts = _Facts(env, obj)
-
-    def key_points(self) -> dict[str, np.ndarray]:
-        f = self._env.scene_facts
-        return {
-            "obj": f.position(self.roles.obj),
-            "goal": f.position(self.roles.goal) + self._shift,
-            "hand": f.hand(),
-        }
-
-
-class _Facts:
-    """`env.scene_facts` with the obstacles every object and fixture but `obj` (None: all of them)."""
-
-    def __init__(self, env: Any, obj: str | None):
-        self._env, self._facts, self._obj = env, env.scene_facts, obj
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._facts, name)
-
-    def owner(self, name: str) -> str:
-        """As SceneFacts.owner; a region of the table itself (no parent object: `..._plate_right_region`):
-        itself (`geom_boxes` gives its flat box)."""
-        o = self._facts.owner(name)
-        return o if o in self._env.unwrapped_libero.env.obj_body_id else name
-
-    def geom_boxes(self, name: str) -> Boxes:
-        """As SceneFacts.geom_boxes; a region of the table itself: its site's box, flat (no thickness)."""
-        e = self._env.unwrapped_libero.env
-        if name in e.obj_body_id:
-            return self._facts.geom_boxes(name)
-        size = np.asarray(e.object_sites_dict[name].size, dtype=np.float64)
-        M = np.asarray(e.sim.data.get_site_xmat(name), dtype=np.float64)
-        return Boxes(self._facts.position(name)[None], M[None], np.array([[size[0], size[1], 0.0]]))
-
-    def obstacles(self) -> Boxes:
-        e = self._env.unwrapped_libero.env
-        names = [n for n in (*e.objects_dict, *e.fixtures_dict) if not _support(n) and n != self._obj]
-        return Boxes.concat([self._facts.geom_boxes(n) for n in names if n in e.obj_body_id])
-
-
-class _AllObstacles(GoalShifted):
-    """`env` with every object an obstacle (for the pull, turn and close steps)."""
-
-    def __init__(self, env: Any):
-        super().__init__(env, np.zeros(3))
-        self.scene_facts = _Facts(env, None)
-
-
-class LongExpert(GoalExpert):
+class LongExpert(GoalExpert, LongPrimitives):
     """The LIBERO-10 expert (see the module docstring): GoalExpert's primitives, a step per goal conjunct."""
 
     name = "gazereg.envs.libero.expert_10.LongExpert"
@@ -422,7 +219,7 @@ class LongExpert(GoalExpert):
             self.phase = "done"
             return
         s = self.steps[self._k]
-        self._env = _AllObstacles(env)
+        self._env = AllObstacles(env)
         if s.kind != "place":
             self._plan_primitive(env, self._env, s)
         else:
@@ -433,7 +230,7 @@ class LongExpert(GoalExpert):
         """Every step's gaze parts, from the first frame on (the collector stores one value per frame): the
         primitives' (planned once here for their parts, planned again when their step starts) and a second
         placement's `obj2`, `goal2`."""
-        view = _AllObstacles(env)
+        view = AllObstacles(env)
         self._env = view
         facts, tol = env.scene_facts, self.p.tolerance_goal
         for k, s in enumerate(self.steps):
@@ -546,111 +343,6 @@ class LongExpert(GoalExpert):
                 return v / max(float(np.linalg.norm(v)), 1e-9)
         return np.array([1.0, 0.0, 0.0])
 
-    # ----- new primitives ---------------------------------------------------------------------------------
-    def _plan_shut(self, env: Any, region: str) -> None:
-        """Waypoints that push `region`'s drawer shut (see the module docstring, "shut")."""
-        joint, q0, q_goal, towards = self._drawer_slide(env, region, "default_close_ranges")
-        u = -towards  # the opening direction (out of the cabinet)
-        p = self.p
-        travel = abs(q_goal - q0) + p.shut_extra
-        boxes = body_boxes(env, joint.body)
-        k = int(np.argmax(boxes.centre @ u))
-        handle0 = boxes.centre[k].copy()
-        front = float(np.max(boxes.corners().reshape(-1, 8, 3)[k] @ u))  # the handle's front, along u
-        body = joint.body
-        xpos0 = env.physics_data.xpos[body].copy()
-        self._parts["handle"] = lambda: (
-            boxes.centre[k] + env.physics_data.xpos[body] - xpos0,
-            self._touches(env, body),
-        )
-        # the closed fingers (pointing down, closing across the push) against the handle's front
-        closing = np.cross(np.array([0.0, 0.0, 1.0]), u)[:2]
-        closing3 = np.array([*closing, 0.0]) / max(float(np.linalg.norm(closing)), 1e-9)
-        rots = [frame(np.array([0.0, 0.0, -1.0]), sgn * closing3) for sgn in (1.0, -1.0)]
-        now = self._ori()  # of the two, the one the wrist reaches with the least turn from where it is
-        R = min(rots, key=lambda r: np.linalg.norm(axis_angle_of(r @ now.T)))
-        # then tilted `shut_tilt` about the closing axis, the fingertips leading into the cabinet: the forearm
-        # stays back from the cabinet's front
-        t = p.shut_tilt * float(np.sign(np.cross(R[:, 0], np.array([0.0, 0.0, -1.0])) @ -u) or 1.0)
-        R_tilt = _rot_about(R[:, 0], t) @ R
-        pad_z = float(handle0[2]) + p.finger_tip - p.shut_low
-        along = handle0 + u * (front - float(handle0 @ u))  # the handle's front face, at its centre
-        start = np.array([*(along + u * p.shut_standoff)[:2], pad_z])
-        press = np.array([*(along + u * p.finger_half_width)[:2], pad_z])
-        hand0 = env.key_points()["hand"]
-        high = max(self._travel_z(hand0, start, p.tip_depth), pad_z + p.hover)
-
-        def shut() -> bool:
-            return bool(env.unwrapped_libero.env.object_states_dict[region].is_close())
-
-        via = p.via_tolerance
-        self._waypoints = [
-            Waypoint("rise", lambda pts: np.array([*pts["hand"][:2], high]), R, GRIP_CLOSE, tolerance=via),
-            Waypoint("over", lambda pts: np.array([*start[:2], high]), R, GRIP_CLOSE, tolerance=via),
-            Waypoint("down", lambda pts: start, R, GRIP_CLOSE),
-            Waypoint("tilt", lambda pts: start, R_tilt, GRIP_CLOSE, rot_speed=0.5),
-            Waypoint(
-                "push",
-                lambda pts: press - u * travel,
-                R_tilt,
-                GRIP_CLOSE,
-                p.shut_speed,
-                steps=p.shut_steps,
-                done=shut,
-            ),
-            Waypoint("back_off", lambda pts: self._held(pts, u * 0.06), R_tilt, GRIP_CLOSE, tolerance=via),
-        ]
-
-    def _plan_swing(self, env: Any, fixture: str) -> None:
-        """Waypoints that swing `fixture`'s hinged door shut (see the module docstring, "swing")."""
-        e = env.unwrapped_libero.env
-        obj = e.get_object(fixture)
-        ranges = obj.object_properties["articulation"]["default_close_ranges"]
-        joint = Joint.named(env, list(obj.joints)[0])
-        q0, q_goal = joint.value(env), float(np.mean(ranges))
-        sign = float(np.sign(joint.axis[2])) or 1.0
-        turn = sign * (q_goal - q0)  # the door's world yaw change to close it
-        p = self.p
-        door = body_boxes(env, joint.body)
-        hinge = joint.anchor
-        corners = door.corners()
-        rel = corners[:, :2] - hinge[:2]
-        far = rel[int(np.argmax(np.linalg.norm(rel, axis=1)))]
-        width = float(np.linalg.norm(far))
-        r_dir = far / max(width, 1e-9)
-        # the face the door sweeps towards when closing: the side the rotation moves the door's points to
-        t_dir = np.sign(turn) * np.array([-r_dir[1], r_dir[0]])
-        thick = float(np.max(-(rel @ t_dir)))  # the door's extent behind (against the sweep)
-        z = float(np.clip(hinge[2], door.centre[:, 2].min(), door.centre[:, 2].max()))
-        r = p.swing_reach * width
-        body = joint.body
-        self._parts["door"] = lambda: (
-            np.array([*(hinge[:2] + rot_z(sign * (joint.value(env) - q0))[:2, :2] @ (r_dir * r)), z]),
-            self._touches(env, body),
-        )
-        start = np.array([*(hinge[:2] + r_dir * r - t_dir * (thick + p.swing_gap)), z])
-        hand0 = env.key_points()["hand"]
-        high = max(self._travel_z(hand0, start, p.tip_depth), z + p.hover)
-
-        def swing_target(pts: dict[str, np.ndarray]) -> np.ndarray:
-            ang = sign * (joint.value(env) - q0) + np.sign(turn) * p.swing_step
-            ang = float(np.clip(ang, min(0.0, turn), max(0.0, turn)))
-            v = rot_z(ang)[:2, :2] @ (r_dir * r - t_dir * (thick + p.swing_gap * 0.3))
-            return np.array([*(hinge[:2] + v), z])
-
-        def closed() -> bool:
-            return bool(e.object_states_dict[fixture].is_close())
-
-        via = p.via_tolerance
-        R = DOWN_ALONG_Y
-        self._waypoints = [
-            Waypoint("rise", lambda pts: np.array([*pts["hand"][:2], high]), R, GRIP_CLOSE, tolerance=via),
-            Waypoint("over", lambda pts: np.array([*start[:2], high]), R, GRIP_CLOSE, tolerance=via),
-            Waypoint("down", lambda pts: start, R, GRIP_CLOSE),
-            Waypoint("swing", swing_target, R, GRIP_CLOSE, p.swing_speed, done=closed, steps=150),
-            Waypoint("up", lambda pts: self._held(pts, np.array([0, 0, p.retreat_height])), R, GRIP_CLOSE),
-        ]
-
     # ----- control --------------------------------------------------------------------------------------
     def _step_done(self) -> bool:
         if self._placer is not None:
@@ -676,18 +368,6 @@ class LongExpert(GoalExpert):
         if self._k >= len(self.steps):
             return np.array([0, 0, 0, 0, 0, 0, GRIP_OPEN], dtype=np.float32)
         return super().__call__(env)
-
-
-def _rot_about(axis: np.ndarray, angle: float) -> np.ndarray:
-    """The rotation (3, 3) by `angle` radians about the unit vector `axis` (Rodrigues)."""
-    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
-
-
-def _support(name: str) -> bool:
-    """A table or the floor (LIBERO's SUPPORTS, and LIBERO-10's `living_room_table`, `study_table`, ...): what
-    objects stand on, not an obstacle."""
-    return name in SUPPORTS or name.endswith("_table")
 
 
 def _root(env: Any, name: str) -> int:
