@@ -68,8 +68,9 @@ from gazereg.envs.libero.expert_object import ItemShape
 from gazereg.envs.libero.goal_placers import BowlPlacer, ItemPlacer
 from gazereg.envs.libero.goal_primitives import Waypoint
 from gazereg.envs.libero.goal_scene import (
-    Joint,
+    drawer_joints,
     goal_predicates,
+    region_body,
     region_shift,
     support_top,
 )
@@ -178,10 +179,9 @@ class LongExpert(GoalExpert, LongPrimitives):
         """Plan `env`'s task (a LiberoEnv of a LIBERO-10 scene, just reset): the steps, then the first one."""
         self._start_episode(env, noise_seed)
         self._real = env
-        sites = env.unwrapped_libero.env.object_sites_dict
 
         def drawer_closed(region: str) -> bool | None:
-            if not list(getattr(sites.get(region), "joints", None) or []):
+            if not drawer_joints(env, region):
                 return None
             return not self._is_open(env, region)
 
@@ -274,26 +274,19 @@ class LongExpert(GoalExpert, LongPrimitives):
         """Into an open drawer: the target moved along the opening direction until the object's footprint
         (`drawer_margin` to spare) is clear of the cabinet above the drawer (the closed drawer over it, whose
         front lip would catch a bowl's rim), at most to `drawer_shift_max`; zero for any other target."""
-        e = env.unwrapped_libero.env
-        site = e.object_sites_dict.get(region)
-        joints = list(getattr(site, "joints", None) or [])
-        if not joints:
+        if not drawer_joints(env, region):
             return np.zeros(3)
-        import mujoco
-
-        m = env.physics_model
-        joint = Joint.named(env, joints[0])
+        e, m = env.unwrapped_libero.env, env.physics_model
         owner = env.scene_facts.owner(region)
-        ranges = e.get_object(owner).object_properties["articulation"]["default_close_ranges"]
-        u = joint.axis * np.sign(joint.value(env) - float(np.mean(ranges)))  # out of the cabinet
-        u = u / max(float(np.linalg.norm(u)), 1e-9)
+        joint, _, _, towards_closed = self._drawer_slide(env, region, "default_close_ranges")
+        u = -towards_closed  # out of the cabinet
         target = env.scene_facts.position(region)
         shape = ItemShape.of(env.scene_facts.geom_boxes(obj))
         radius = float(
             np.max(np.linalg.norm(shape.corners[:, :2] - env.scene_facts.position(obj)[:2], axis=1))
         )
         floor = support_top(env, region, target[:2])
-        root = int(m.site_bodyid[int(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, region))])
+        root = region_body(env, region)
         while int(m.body_parentid[root]) != 0 and root != int(e.obj_body_id[owner]):
             root = int(m.body_parentid[root])
         geoms = subtree_geoms(m, root)

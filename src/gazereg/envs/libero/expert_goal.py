@@ -66,7 +66,13 @@ from gazereg.envs.libero.expert import (
 from gazereg.envs.libero.expert_object import YAWS, ItemShape, ObjectParams
 from gazereg.envs.libero.goal_placers import BowlPlacer, ItemPlacer
 from gazereg.envs.libero.goal_primitives import GoalPrimitives, Waypoint
-from gazereg.envs.libero.goal_scene import GoalShifted, body_geoms, goal_predicates, region_shift
+from gazereg.envs.libero.goal_scene import (
+    GoalShifted,
+    body_geoms,
+    drawer_joints,
+    goal_predicates,
+    region_shift,
+)
 
 KINDS = ("open", "turn_on", "place", "push", "open_place")
 
@@ -151,9 +157,7 @@ class GoalExpert(GoalPrimitives, PickPlaceExpert):
             self._plan_turn(env, pred[1])
             self.gaze_targets = ("knob",)
         elif head in ("on", "in"):
-            region = env.unwrapped_libero.env.object_sites_dict.get(pred[2])
-            joints = list(getattr(region, "joints", None) or [])
-            if head == "in" and joints and not self._is_open(env, pred[2]):
+            if head == "in" and drawer_joints(env, pred[2]) and not self._is_open(env, pred[2]):
                 self.kind = "open_place"
                 self._plan_pull(env, pred[2])
                 self.gaze_targets = ("handle", "obj", "goal")

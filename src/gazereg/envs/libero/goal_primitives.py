@@ -50,6 +50,7 @@ from gazereg.envs.libero.goal_scene import (
     Joint,
     body_boxes,
     corridor_top,
+    drawer_joints,
     frame,
     rot_z,
     support_top,
@@ -86,15 +87,14 @@ class GoalPrimitives:
     def _drawer_slide(self, env: Any, region: str, ranges: str) -> tuple[Joint, float, float, np.ndarray]:
         """`region`'s drawer: its slide joint, the joint's value now and its goal (the middle of the cabinet's
         articulation `ranges`: "default_open_ranges" or "default_close_ranges"), and the unit direction (3,),
-        world, the drawer moves in to reach the goal."""
+        world, the drawer moves in to reach the goal (zero when it is there)."""
         e = env.unwrapped_libero.env
-        site = e.object_sites_dict[region]
         owner = env.scene_facts.owner(region)
         goal_range = e.get_object(owner).object_properties["articulation"][ranges]
-        joint = Joint.named(env, list(site.joints)[0])
+        joint = Joint.named(env, drawer_joints(env, region)[0])
         q0, q_goal = joint.value(env), float(np.mean(goal_range))
         u = joint.axis * np.sign(q_goal - q0)
-        return joint, q0, q_goal, u / np.linalg.norm(u)
+        return joint, q0, q_goal, u / max(float(np.linalg.norm(u)), 1e-9)
 
     def _plan_pull(self, env: Any, region: str) -> None:
         """Waypoints that pull `region`'s drawer open (see the module docstring, "pull")."""

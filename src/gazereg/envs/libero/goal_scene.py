@@ -64,17 +64,29 @@ def goal_predicates(env: Any) -> list[list[str]]:
     return [[str(p[0]).lower(), *map(str, p[1:])] for p in goal]
 
 
+def drawer_joints(env: Any, region: str) -> list[str]:
+    """The slide joints of `region` when it is a drawer's region (its site names them); [] for any other name."""
+    site = env.unwrapped_libero.env.object_sites_dict.get(region)
+    return list(getattr(site, "joints", None) or [])
+
+
+def region_body(env: Any, region: str) -> int:
+    """The MuJoCo body id of the body that `region`'s site is attached to."""
+    import mujoco
+
+    m = env.physics_model
+    return int(m.site_bodyid[int(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, region))])
+
+
 def support_top(env: Any, name: str, xy: np.ndarray) -> float:
     """The highest top (z, metres) among the collision boxes of `name` (a region: its site's body and the bodies
     below it; an object or fixture: its own) whose footprint holds the point `xy` (2,); `name`'s own z if
     none does."""
-    import mujoco
-
     m = env.physics_model
     facts = env.scene_facts
     e = env.unwrapped_libero.env
     if name in e.object_sites_dict:
-        root = int(m.site_bodyid[int(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, name))])
+        root = region_body(env, name)
     else:
         root = int(e.obj_body_id[facts.owner(name)])
     boxes = collision_boxes(m, env.physics_data, subtree_geoms(m, root))
