@@ -100,6 +100,15 @@ def test_a_given_glc_checkpoint_is_loaded_before_the_first_stage(tmp_path, no_st
         check_glc_checkpoint(GLCParams(checkpoint=tmp_path / "other.pt", config="small"))
 
 
+def test_a_glc_checkpoint_no_prior_is_made_from_is_not_required(tmp_path):
+    """A run of other arms (a sitting's baseline and gaze) starts where its preset's GLC is not built yet."""
+    missing = tmp_path / "glc-not-trained" / "final"
+    cfg = replace(smoke(), out=tmp_path / "exp", glc=GLCParams(checkpoint=missing))
+    preflight(replace(cfg, arms=("baseline", "gaze")))
+    with pytest.raises(UsageError, match=r"^--glc\.checkpoint .*glc-not-trained.* does not exist"):
+        preflight(cfg)
+
+
 def test_evaluation_checks_its_tasks_against_the_simulator_before_anything_else(tmp_path):
     check_tasks("metaworld", ("reach-v3", "button-press-topdown-v3"))
     with pytest.raises(UsageError) as refused:

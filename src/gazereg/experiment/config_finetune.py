@@ -76,15 +76,19 @@ def ml45_study() -> ExperimentConfig:
     """The fine-tuning study (issue 36 item 4) at 10 demonstrations per task: `ml45_finetune` at the tuned
     recipe (6,000 steps) with the tuned gaze term (`STUDY_GAZE`); arms baseline, gaze (the visuomotor
     prior), glc (`GLC_ML45`'s prediction from the video) and uniform (the term without any location); 3
-    training seeds, one per sitting; 50 unseen setups per task (1,000..1,049), clean; success at 3
-    checkpoints on 10 setups per task (convergence). Two arms train side by side on one thread each: the
-    2 cores train more steps per second that way than with one run on both (benchmarks/bench_parallel.py,
-    docs/speed.md).
+    training seeds; 50 unseen setups per task (1,000..1,049), clean; success at 3 checkpoints on 10 setups
+    per task (convergence). Two arms a sitting, side by side on one thread each: the 2 cores train more
+    steps per second that way than with one run on both (benchmarks/bench_parallel.py, docs/speed.md), and
+    four arms do not fit a session (scripts/study_finetune.py runs the sittings).
 
-        gazereg experiment --preset ml45_study --train-seeds 0 --out runs/study10-s0
-        gazereg experiment --preset ml45_study --train-seeds 1 --out runs/study10-s1 --data-from runs/study10-s0
-        gazereg experiment --preset ml45_study --train-seeds 2 --out runs/study10-s2 --data-from runs/study10-s0
-        gazereg pool --preset ml45_study --runs runs/study10-s0 runs/study10-s1 runs/study10-s2 --out runs/study10
+        gazereg experiment --preset ml45_study --train-seeds 0 --arms baseline gaze --out runs/study10-s0
+        gazereg experiment --preset ml45_study --train-seeds 0 --arms glc uniform --out runs/study10-s0-glc \
+            --data-from runs/study10-s0
+        gazereg experiment --preset ml45_study --train-seeds 1 --arms baseline gaze --out runs/study10-s1 \
+            --data-from runs/study10-s0
+        ...
+        gazereg pool --preset ml45_study --runs runs/study10-s0 runs/study10-s0-glc runs/study10-s1 ... \
+            --out runs/study10
     """
     ft = ml45_finetune()
     return replace(

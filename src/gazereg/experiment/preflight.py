@@ -27,7 +27,8 @@ from gazereg.training.init_from import read_init
 def preflight(cfg: ExperimentConfig) -> None:
     """Check before the first stage (UsageError, one line naming the option): the tasks against the
     simulator's registry, `--train.data.tasks` against them (as the store names them), a given
-    `--glc.checkpoint` (loaded: a missing file, one that is no GLC checkpoint, pickled code), and every gaze
+    `--glc.checkpoint` when a prior is made from it (loaded: a missing file, one that is no GLC checkpoint,
+    pickled code; a run of other arms does not need it), and every gaze
     source the arms' priors need (built; the glc arm's own GLC and cross-fitted ones are trained later)."""
     check_tasks(cfg.env, cfg.tasks, "--tasks")
     if cfg.train.data.tasks:
@@ -40,7 +41,7 @@ def preflight(cfg: ExperimentConfig) -> None:
             )
     if cfg.train.init_from is not None:  # a saved policy of this type; the train stage checks its shapes
         read_init(Path(cfg.train.init_from), cfg.train.policy.type, "--train.init-from")
-    if cfg.glc.checkpoint is not None:
+    if cfg.glc.checkpoint is not None and needs_glc(cfg):
         check_glc_checkpoint(cfg.glc)
     for prior in priors_to_check(cfg):
         try:
@@ -60,6 +61,12 @@ def priors_to_check(cfg: ExperimentConfig) -> list[PriorSpec]:
         if prior is not None and not isinstance(prior.source, GLCParams | GLCFoldsParams):
             specs[prior.name] = prior
     return list(specs.values())
+
+
+def needs_glc(cfg: ExperimentConfig) -> bool:
+    """Whether a prior the priors stage makes comes from a GLC (the glc arm's, or a GLC gaze source)."""
+    specs = [gaze_prior(cfg), *(arm_prior(arm, cfg) for arm in cfg.arms)]
+    return any(s is not None and isinstance(s.source, GLCParams | GLCFoldsParams) for s in specs)
 
 
 def check_glc_checkpoint(params: GLCParams, flag: str = "--glc.checkpoint") -> None:
