@@ -35,6 +35,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "gazereg.experiment.pool:main",
         "one report over run folders of one experiment that differ only in their training seeds and arms",
     ),
+    "sittings": (
+        "gazereg.experiment.sittings:main",
+        "a benchmark too long for one session in archived sittings (run the next, list, pool)",
+    ),
     "archive": (
         "gazereg.experiment.archive:main",
         "a finished experiment's results without its data or checkpoints, to commit; `pool` reads it",

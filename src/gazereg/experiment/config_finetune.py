@@ -79,7 +79,7 @@ def ml45_study() -> ExperimentConfig:
     training seeds; 50 unseen setups per task (1,000..1,049), clean; success at 3 checkpoints on 10 setups
     per task (convergence). Two arms a sitting, side by side on one thread each: the 2 cores train more
     steps per second that way than with one run on both (benchmarks/bench_parallel.py, docs/speed.md), and
-    four arms do not fit a session (scripts/study_finetune.py runs the sittings).
+    four arms do not fit a session (`gazereg sittings ml45-study` runs the sittings).
 
         gazereg experiment --preset ml45_study --train-seeds 0 --arms baseline gaze --out runs/study10-s0
         gazereg experiment --preset ml45_study --train-seeds 0 --arms glc uniform --out runs/study10-s0-glc \

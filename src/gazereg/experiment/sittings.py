@@ -1,0 +1,261 @@
+"""`gazereg sittings`: a benchmark too long for one session, run as sittings that each fit one, every finished
+sitting archived (`gazereg archive`) so that its rows recompute from its episodes, and the archives pooled
+(`gazereg pool`) into one report per preset.
+
+    gazereg sittings ml45-study                          # the next sitting not archived: run (or resume), archive
+    gazereg sittings ml45-study --sitting study50-s0-glc # this one (run, resumed or re-archived)
+    gazereg sittings ml45-study --list                   # every sitting, archived or not
+    gazereg sittings ml45-study --pool                   # each preset's archived sittings pooled into runs/
+    bash scripts/libero_env.sh gazereg sittings libero-spatial
+
+A schedule (`SCHEDULES`, by name) is one or more experiment presets ("parts", each with its own name) at some
+training seeds. A sitting is one group of arms of one part at one seed: the preset's arms in groups of its
+`parallel` (the arms that train side by side, one thread each on 2 cores), so a sitting trains only as long
+as one arm does. The first group's sitting is named `<part>-s<seed>`, the others `<part>-s<seed>-<first arm>`
+(`study10-s0`, `study10-s0-glc`). Order: seed by seed, and within a seed part by part, so a schedule stopped
+anywhere has its parts at (nearly) the same seeds. A sitting runs
+
+    gazereg experiment --preset P --train-seeds S --arms A B --out runs/NAME [--data-from runs/<part's first>]
+    gazereg archive runs/NAME --out docs/records/NAME
+
+(`--data-from` the part's first sitting when that folder is here with its demonstrations: the same
+demonstrations copied, not collected again; without it they are collected again from the same seeds), and is
+checked to be that command's run before it is archived. A sitting whose arms need something no sitting makes
+(the ML45 study's GLC, trained on the pretraining's demonstrations) builds it first (`Prerequisite`). The
+pool of a part takes the seeds archived so far at the arm groups every one of them has archived (a pool needs
+each of its arms at each of its seeds); `python scripts/update_results.py runs/<part> --marker <part>` puts it
+on its docs page.
+
+Run folders are under runs/ and archives under docs/records of the working directory (the repository root);
+`--records` names another archive folder. Bad input (an unknown schedule or sitting, a sitting that was run
+with another configuration) is one line and exit status 2 before anything runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from gazereg.experiment.config_finetune import GLC_ML45
+from gazereg.experiment.pool import main as pool_main
+from gazereg.experiment.tuning import archived_run, built_config, run_experiment
+from gazereg.runtime.errors import UsageError
+
+RUNS = Path("runs")
+RECORDS = Path("docs/records")
+
+
+@dataclass(frozen=True)
+class Step:
+    """One command of a prerequisite, done when the file `done` (relative to the root) exists."""
+
+    done: Path
+    command: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Prerequisite:
+    """What the sittings of one arm need that no sitting makes (`what`): its steps run in order, each skipped
+    when it is done, and none when the last one is."""
+
+    arm: str
+    what: str
+    steps: tuple[Step, ...]
+
+    def build(self, root: Path) -> None:
+        if (root / self.steps[-1].done).exists():
+            return
+        print(f"{self.what} is not here: building it", flush=True)
+        for step in self.steps:
+            if not (root / step.done).exists():
+                print(shlex.join(step.command), flush=True)
+                run_experiment(step.command, root)
+
+
+STUDY_GLC = Prerequisite(
+    "glc",
+    f"the ML45 study's GLC {GLC_ML45} (about half an hour on 2 cores)",
+    (
+        Step(  # the pretraining's demos stage; its train stage pauses after one step (the same command
+            # without --train.stop-at continues it)
+            Path("runs/pretrain/stages/demos.json"),
+            ("gazereg", "pretrain", "--preset", "ml45", "--out", "runs/pretrain", "--train.stop-at", "1"),
+        ),
+        Step(
+            GLC_ML45 / "config.json",
+            (
+                "gazereg",
+                "glc",
+                "train",
+                "--store",
+                "runs/pretrain/demos",
+                "--gaze-source",
+                "visuomotor",
+                "--out",
+                GLC_ML45.parent.as_posix(),
+            ),
+        ),  # fmt: skip
+    ),
+)
+"""the GLC of the ML45 study's glc arm (`config_finetune.GLC_ML45`): trained only on the 45 training tasks'
+demonstrations (the pretraining's, from its demos stage) with their visuomotor gaze"""
+
+
+@dataclass(frozen=True)
+class Part:
+    """One experiment preset of a schedule: `name` prefixes its sittings and names its pool (runs/<name>)."""
+
+    name: str
+    preset: str
+
+
+@dataclass(frozen=True)
+class Sitting:
+    """One group of arms of one part at one training seed (module docstring)."""
+
+    part: Part
+    seed: int
+    arms: tuple[str, ...]
+    first_group: bool
+
+    @property
+    def name(self) -> str:
+        base = f"{self.part.name}-s{self.seed}"
+        return base if self.first_group else f"{base}-{self.arms[0]}"
+
+    @property
+    def folder(self) -> Path:
+        return RUNS / self.name
+
+    def command(self) -> list[str]:
+        """The sitting's `gazereg experiment` command line, what its run is checked against."""
+        cmd = ["gazereg", "experiment", "--preset", self.part.preset, "--train-seeds", str(self.seed)]
+        return [*cmd, "--arms", *self.arms, "--out", self.folder.as_posix()]
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """Parts at training seeds (module docstring); `prerequisites` are built before a sitting of their arm."""
+
+    parts: tuple[Part, ...]
+    seeds: tuple[int, ...] = (0, 1, 2)
+    prerequisites: tuple[Prerequisite, ...] = ()
+    doc: str = ""
+
+    def arm_groups(self, part: Part) -> list[tuple[str, ...]]:
+        """The part's preset's arms in groups of its `parallel`, in order."""
+        cfg = built_config(("gazereg", "experiment", "--preset", part.preset))
+        size = max(1, cfg.parallel)
+        return [tuple(cfg.arms[i : i + size]) for i in range(0, len(cfg.arms), size)]
+
+    def sittings(self) -> list[Sitting]:
+        return [
+            Sitting(part, seed, arms, i == 0)
+            for seed in self.seeds
+            for part in self.parts
+            for i, arms in enumerate(self.arm_groups(part))
+        ]
+
+    def first(self, part: Part) -> Sitting:
+        return next(s for s in self.sittings() if s.part == part)
+
+
+SCHEDULES: dict[str, Schedule] = {
+    "ml45-study": Schedule(
+        (Part("study10", "ml45_study"), Part("study50", "ml45_study50")),
+        prerequisites=(STUDY_GLC,),
+        doc="issue 36's study: the ML45 generalist fine-tuned on the 5 held-out tasks, 10 and 50 demos",
+    ),
+    "libero-spatial": Schedule((Part("libero-spatial", "libero"),), doc="LIBERO-Spatial, 3 seeds"),
+    "libero-object": Schedule((Part("libero-object", "libero_object"),), doc="LIBERO-Object"),
+    "libero-goal": Schedule((Part("libero-goal", "libero_goal"),), doc="LIBERO-Goal"),
+    "libero-10": Schedule((Part("libero-10", "libero_10"),), doc="LIBERO-10 (long-horizon)"),
+    "aloha": Schedule((Part("aloha", "aloha"),), doc="Gym-Aloha's transfer cube and insertion"),
+}
+"""every schedule by name (`gazereg sittings NAME`); each part's preset is one of gazereg.experiment.config's"""
+
+
+def is_archived(sitting: Sitting, root: Path, records: Path = RECORDS) -> bool:
+    return (root / records / sitting.name / "archive.json").exists()
+
+
+def data_from(schedule: Schedule, sitting: Sitting, root: Path) -> list[str]:
+    """`--data-from` the part's first sitting's folder when it is here with its demonstrations."""
+    first = schedule.first(sitting.part)
+    if sitting != first and (root / first.folder / "stages" / "demos.json").exists():
+        return ["--data-from", first.folder.as_posix()]
+    return []
+
+
+def run_sitting(schedule: Schedule, sitting: Sitting, root: Path, records: Path = RECORDS) -> Path:
+    """Build the prerequisites its arms need, run (or resume) the sitting's experiment, check it is the
+    command's run and archive it; the archive's path."""
+    for prerequisite in schedule.prerequisites:
+        if prerequisite.arm in sitting.arms:
+            prerequisite.build(root)
+    cmd = sitting.command()
+    full = [*cmd, *data_from(schedule, sitting, root)]
+    print(f"sitting {sitting.name}: {shlex.join(full)}", flush=True)
+    run_experiment(full, root)
+    dest = root / records / sitting.name
+    archived_run(cmd, root, dest)
+    return dest
+
+
+def pool_command(schedule: Schedule, part: Part, root: Path, records: Path = RECORDS) -> list[str] | None:
+    """`gazereg pool` into runs/<part> of the part's archived sittings: the seeds with an archived sitting, at
+    the arm groups every one of them has archived; None when there is no such group."""
+    done = [s for s in schedule.sittings() if s.part == part and is_archived(s, root, records)]
+    seeds = sorted({s.seed for s in done})
+    groups = [
+        g
+        for g in schedule.arm_groups(part)
+        if seeds and all(any(s.arms == g and s.seed == x for s in done) for x in seeds)
+    ]
+    if not groups:
+        return None
+    runs = [(records / s.name).as_posix() for s in done if s.arms in groups]
+    arms = [arm for g in groups for arm in g]
+    cmd = ["gazereg", "pool", "--preset", part.preset, "--train-seeds", *map(str, seeds), "--arms", *arms]
+    return [*cmd, "--runs", *runs, "--out", (RUNS / part.name).as_posix()]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="gazereg sittings", description=(__doc__ or "").split("\n\n")[0])
+    p.add_argument("schedule", choices=list(SCHEDULES), help="the schedule to run")
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--sitting", help="run this sitting (default: the next one not archived)")
+    group.add_argument("--list", action="store_true", help="list the sittings and which are archived")
+    group.add_argument("--pool", action="store_true", help="only pool each part's archived sittings")
+    p.add_argument(
+        "--records", type=Path, default=RECORDS, help="the archives' folder (default: %(default)s)"
+    )
+    a = p.parse_args(list(sys.argv[1:] if argv is None else argv))
+    root, schedule = Path.cwd(), SCHEDULES[a.schedule]
+    sittings = schedule.sittings()
+    if a.list:
+        for s in sittings:
+            where = f"archived in {a.records / s.name}" if is_archived(s, root, a.records) else "not archived"
+            print(f"{s.name}: {where}")
+        return 0
+    if not a.pool:
+        if a.sitting is not None and a.sitting not in [s.name for s in sittings]:
+            names = ", ".join(s.name for s in sittings)
+            raise UsageError(f"--sitting {a.sitting!r} is not one of {a.schedule}'s sittings ({names})")
+        todo = (
+            [s for s in sittings if s.name == a.sitting]
+            if a.sitting
+            else [s for s in sittings if not is_archived(s, root, a.records)][:1]
+        )
+        if not todo:
+            print(f"every sitting of {a.schedule} is archived")
+        for s in todo:
+            print(f"archived in {run_sitting(schedule, s, root, a.records).relative_to(root)}")
+    for part in schedule.parts:
+        if (cmd := pool_command(schedule, part, root, a.records)) is not None:
+            pool_main(cmd[2:])
+    return 0

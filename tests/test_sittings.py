@@ -1,0 +1,125 @@
+"""`gazereg sittings` (gazereg.experiment.sittings): a schedule's sittings in order, each one `gazereg experiment`
+of a group of arms of a preset at one training seed (its demonstrations copied from the part's first sitting
+when that is here), the pool of the archived sittings, and the prerequisite a sitting's arms need built first
+when it is missing. Nothing trains: the experiment and the archive are replaced by recorders."""
+
+from __future__ import annotations
+
+import pytest
+
+import gazereg.experiment.sittings as sittings
+from gazereg.experiment.config import PRESETS
+from gazereg.experiment.config_finetune import GLC_ML45
+from gazereg.experiment.tuning import built_config
+from gazereg.runtime.errors import UsageError
+
+STUDY = sittings.SCHEDULES["ml45-study"]
+STUDY10, STUDY50 = STUDY.parts
+
+
+@pytest.fixture
+def ran(tmp_path, monkeypatch):
+    """The commands run (their first three words), in tmp_path as the working directory."""
+    monkeypatch.chdir(tmp_path)
+    commands: list[list[str]] = []
+    monkeypatch.setattr(sittings, "run_experiment", lambda cmd, root: commands.append(list(cmd[:3])))
+    monkeypatch.setattr(sittings, "archived_run", lambda *a: None)
+    return commands
+
+
+def _touch(path):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("{}")
+
+
+def test_every_part_names_an_experiment_preset_and_every_arm_is_in_one_sitting_per_seed():
+    for schedule in sittings.SCHEDULES.values():
+        for part in schedule.parts:
+            assert part.preset in PRESETS
+            cfg = built_config(("gazereg", "experiment", "--preset", part.preset))
+            groups = schedule.arm_groups(part)
+            assert [a for g in groups for a in g] == list(cfg.arms)
+            assert all(len(g) <= max(1, cfg.parallel) for g in groups)
+
+
+def test_the_study_takes_both_arm_pairs_and_alternates_the_demonstration_counts_seed_by_seed():
+    names = [f"study{n}-s{seed}{pair}" for seed in (0, 1, 2) for n in (10, 50) for pair in ("", "-glc")]
+    assert names == [s.name for s in STUDY.sittings()]
+    assert STUDY.arm_groups(STUDY10) == [("baseline", "gaze"), ("glc", "uniform")]
+
+
+def test_a_sittings_command_is_its_arms_at_its_seed_with_the_first_sittings_data_when_here(tmp_path):
+    named = {s.name: s for s in STUDY.sittings()}
+    s0, s0_glc, s1 = named["study50-s0"], named["study50-s0-glc"], named["study50-s1"]
+    assert s1.command() == [
+        "gazereg", "experiment", "--preset", "ml45_study50", "--train-seeds", "1", "--arms", "baseline", "gaze",
+        "--out", "runs/study50-s1",
+    ]  # fmt: skip
+    cfg = built_config(tuple(s1.command()))
+    assert cfg.train_seeds == (1,) and cfg.demos_per_task == 50 and cfg.arms == ("baseline", "gaze")
+    assert s0_glc.name == "study50-s0-glc" and s0_glc.command()[-5:] == [
+        "--arms", "glc", "uniform", "--out", "runs/study50-s0-glc"
+    ]  # fmt: skip
+    assert [sittings.data_from(STUDY, s, tmp_path) for s in (s0, s0_glc, s1)] == [[], [], []]
+    _touch(tmp_path / "runs" / "study50-s0" / "stages" / "demos.json")
+    first = ["--data-from", "runs/study50-s0"]
+    assert [sittings.data_from(STUDY, s, tmp_path) for s in (s0, s0_glc, s1)] == [[], first, first]
+    assert sittings.data_from(STUDY, named["study10-s1"], tmp_path) == []  # another preset's demonstrations
+
+
+def _archive(root, *names):
+    for name in names:
+        _touch(root / "docs" / "records" / name / "archive.json")
+
+
+def test_the_pool_takes_the_archived_seeds_at_the_arm_groups_each_has(tmp_path):
+    assert sittings.pool_command(STUDY, STUDY10, tmp_path) is None
+    _archive(tmp_path, "study10-s0", "study10-s0-glc", "study10-s2", "study50-s1-glc")
+    assert sittings.pool_command(STUDY, STUDY10, tmp_path) == [
+        "gazereg", "pool", "--preset", "ml45_study", "--train-seeds", "0", "2", "--arms", "baseline", "gaze",
+        "--runs", "docs/records/study10-s0", "docs/records/study10-s2", "--out", "runs/study10",
+    ]  # fmt: skip
+    assert sittings.pool_command(STUDY, STUDY50, tmp_path)[5:10] == [
+        "1",
+        "--arms",
+        "glc",
+        "uniform",
+        "--runs",
+    ]
+    _archive(tmp_path, "study10-s2-glc")
+    assert sittings.pool_command(STUDY, STUDY10, tmp_path)[7:16] == [
+        "--arms", "baseline", "gaze", "glc", "uniform", "--runs", "docs/records/study10-s0",
+        "docs/records/study10-s0-glc", "docs/records/study10-s2",
+    ]  # fmt: skip
+
+
+def test_the_next_sitting_is_the_first_not_archived_and_a_glc_sitting_builds_the_missing_glc_first(
+    tmp_path, ran, monkeypatch
+):
+    pooled: list[list[str]] = []
+    monkeypatch.setattr(sittings, "pool_main", pooled.append)
+    assert sittings.main(["ml45-study"]) == 0
+    assert ran == [["gazereg", "experiment", "--preset"]] and pooled == []  # study10-s0: no GLC needed
+    _archive(tmp_path, "study10-s0")
+    ran.clear()
+    assert sittings.main(["ml45-study"]) == 0  # study10-s0-glc
+    assert ran == [
+        ["gazereg", "pretrain", "--preset"], ["gazereg", "glc", "train"], ["gazereg", "experiment", "--preset"]
+    ]  # fmt: skip
+    assert pooled == [sittings.pool_command(STUDY, STUDY10, tmp_path)[2:]]
+    assert sittings.STUDY_GLC.steps[-1].command[-1] + "/final" == GLC_ML45.as_posix()
+    ran.clear()  # the demonstrations here: only the GLC is trained; the GLC here: nothing is built
+    _touch(tmp_path / "runs" / "pretrain" / "stages" / "demos.json")
+    sittings.STUDY_GLC.build(tmp_path)
+    assert ran == [["gazereg", "glc", "train"]]
+    _touch(tmp_path / GLC_ML45 / "config.json")
+    ran.clear()
+    sittings.STUDY_GLC.build(tmp_path)
+    assert ran == []
+
+
+def test_an_unknown_sitting_is_refused_before_anything_runs(ran):
+    refused = r"^--sitting 'study10-s9' is not one of ml45-study's sittings \(study10-s0, "
+    with pytest.raises(UsageError, match=refused):
+        sittings.main(["ml45-study", "--sitting", "study10-s9"])
+    assert ran == []
