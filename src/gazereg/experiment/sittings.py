@@ -225,7 +225,11 @@ def pool_command(schedule: Schedule, part: Part, root: Path, records: Path = REC
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="gazereg sittings", description=(__doc__ or "").split("\n\n")[0])
+    p = argparse.ArgumentParser(
+        prog="gazereg sittings",
+        description=(__doc__ or "").split("\n\n")[0],
+        epilog="schedules: " + "; ".join(f"{name}: {s.doc}" for name, s in SCHEDULES.items()),
+    )
     p.add_argument("schedule", choices=list(SCHEDULES), help="the schedule to run")
     group = p.add_mutually_exclusive_group()
     group.add_argument("--sitting", help="run this sitting (default: the next one not archived)")
@@ -238,6 +242,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     root, schedule = Path.cwd(), SCHEDULES[a.schedule]
     sittings = schedule.sittings()
     if a.list:
+        print(f"{a.schedule}: {schedule.doc}")
         for s in sittings:
             where = f"archived in {a.records / s.name}" if is_archived(s, root, a.records) else "not archived"
             print(f"{s.name}: {where}")
