@@ -56,17 +56,24 @@ def priors_to_check(cfg: ExperimentConfig) -> list[PriorSpec]:
     """The priors the priors stage makes whose source can be built now: all but the glc arm's (a given
     checkpoint is checked on its own; a GLC the experiment trains does not exist yet)."""
     specs = {gaze_prior(cfg).name: gaze_prior(cfg)}
-    for arm in cfg.arms:
-        prior = arm_prior(arm, cfg)
-        if prior is not None and not isinstance(prior.source, GLCParams | GLCFoldsParams):
+    for prior in arm_priors(cfg):
+        if not from_glc(prior):
             specs[prior.name] = prior
     return list(specs.values())
 
 
 def needs_glc(cfg: ExperimentConfig) -> bool:
     """Whether a prior the priors stage makes comes from a GLC (the glc arm's, or a GLC gaze source)."""
-    specs = [gaze_prior(cfg), *(arm_prior(arm, cfg) for arm in cfg.arms)]
-    return any(s is not None and isinstance(s.source, GLCParams | GLCFoldsParams) for s in specs)
+    return any(from_glc(prior) for prior in (gaze_prior(cfg), *arm_priors(cfg)))
+
+
+def arm_priors(cfg: ExperimentConfig) -> list[PriorSpec]:
+    """The prior of every arm that trains with one, in the arms' order."""
+    return [prior for arm in cfg.arms if (prior := arm_prior(arm, cfg)) is not None]
+
+
+def from_glc(prior: PriorSpec) -> bool:
+    return isinstance(prior.source, GLCParams | GLCFoldsParams)
 
 
 def check_glc_checkpoint(params: GLCParams, flag: str = "--glc.checkpoint") -> None:

@@ -161,7 +161,8 @@ class Schedule:
         ]
 
     def first(self, part: Part) -> Sitting:
-        return next(s for s in self.sittings() if s.part == part)
+        """The part's first sitting: its first arm group at the first seed."""
+        return Sitting(part, self.seeds[0], self.arm_groups(part)[0], True)
 
 
 SCHEDULES: dict[str, Schedule] = {
@@ -209,16 +210,14 @@ def run_sitting(schedule: Schedule, sitting: Sitting, root: Path, records: Path 
 def pool_command(schedule: Schedule, part: Part, root: Path, records: Path = RECORDS) -> list[str] | None:
     """`gazereg pool` into runs/<part> of the part's archived sittings: the seeds with an archived sitting, at
     the arm groups every one of them has archived; None when there is no such group."""
-    done = [s for s in schedule.sittings() if s.part == part and is_archived(s, root, records)]
-    seeds = sorted({s.seed for s in done})
-    groups = [
-        g
-        for g in schedule.arm_groups(part)
-        if seeds and all(any(s.arms == g and s.seed == x for s in done) for x in seeds)
-    ]
+    done = {
+        (s.seed, s.arms): s for s in schedule.sittings() if s.part == part and is_archived(s, root, records)
+    }
+    seeds = sorted({seed for seed, _ in done})
+    groups = [g for g in schedule.arm_groups(part) if seeds and all((x, g) in done for x in seeds)]
     if not groups:
         return None
-    runs = [(records / s.name).as_posix() for s in done if s.arms in groups]
+    runs = [(records / s.name).as_posix() for s in done.values() if s.arms in groups]
     arms = [arm for g in groups for arm in g]
     cmd = ["gazereg", "pool", "--preset", part.preset, "--train-seeds", *map(str, seeds), "--arms", *arms]
     return [*cmd, "--runs", *runs, "--out", (RUNS / part.name).as_posix()]
