@@ -10,11 +10,11 @@ setup:
 	@EXTRAS=$(EXTRAS) VENV=$(VENV) bash scripts/setup.sh
 
 demo: setup
-	$(VENV)/bin/gazereg experiment --preset quick
+	$(VENV)/bin/gazereg experiment --preset demo
 
-# The main job, then a check that its numbers match docs/main-job.md's quick block (CI runs this).
+# The main job, then a check that its numbers match docs/main-job.md's demo block (CI runs this).
 demo-check: demo
-	$(PY) scripts/update_results.py runs/quick --check
+	$(PY) scripts/update_results.py runs/demo --check
 
 RUFF_PATHS := src tests benchmarks examples scripts lerobot_plugin tests_lerobot tests_aloha
 

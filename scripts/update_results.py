@@ -1,13 +1,13 @@
 """Write experiment results into the docs pages' generated blocks and the README's headline.
 
-    python scripts/update_results.py runs/quick                                  # block quick-results
+    python scripts/update_results.py runs/demo                                   # block demo-results
     python scripts/update_results.py runs/paper --marker paper-results           # and the README's headline
     python scripts/update_results.py runs/paper6k --against runs/paper --marker paper-budget
         (run B = runs/paper6k compared with run A = runs/paper on the setups both evaluated)
     python scripts/update_results.py --headline                                  # only the README's headline
     python scripts/update_results.py --file runs/paper-s0/horizon500/horizon.md --marker paper-s0-horizon
         (a markdown file a script wrote, e.g. scripts/horizon.py's, as the block)
-    python scripts/update_results.py runs/quick --check      # exit 1 if the run's numbers disagree with the block
+    python scripts/update_results.py runs/demo --check       # exit 1 if the run's numbers disagree with the block
     python scripts/update_results.py docs/records/pretrain-ml45 --marker pretrain-ml45
         (a `gazereg pretrain` folder or its archive: its block, `FinishedPretraining.block`)
 

@@ -4,6 +4,7 @@ same run from scratch differ only in where the weights start, on ML45's held-out
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 from gazereg.envs.metaworld.ml45 import ml45_split
 from gazereg.experiment.config import PRESETS
@@ -48,3 +49,77 @@ def test_the_study_is_the_finetuning_preset_at_the_tunings_choice(load_script):
     assert study.glc.checkpoint == GLC_ML45 and study.eval.seed_start == 1000
     assert (study.demos_per_task, study50.demos_per_task) == (10, 50)
     assert to_dict(replace(study50, out=study.out, demos_per_task=10)) == to_dict(study)
+
+
+def test_the_demo_is_the_study_shortened_on_two_held_out_tasks_of_its_own():
+    """`make demo` (`demo`): the study's recipe, gaze term and demonstrations, on DEMO_TASKS, baseline and gaze,
+    fewer steps, one seed, evaluation setups of its own; nothing else differs."""
+    from gazereg.experiment.config_finetune import DEMO_EVAL_START, DEMO_TASKS, STUDY_GAZE
+
+    demo, study = PRESETS["demo"](), PRESETS["ml45_study"]()
+    assert set(DEMO_TASKS) < set(ml45_split().test) and demo.tasks == DEMO_TASKS
+    assert demo.arms == ("baseline", "gaze") and demo.train_seeds == (0,)
+    assert demo.train.init_from == GENERALIST and demo.train.gaze == STUDY_GAZE
+    assert demo.train.steps < study.train.steps and demo.glc.checkpoint is None
+    assert demo.eval.seed_start == DEMO_EVAL_START and demo.convergence_points == 1
+    back = replace(
+        demo,
+        out=study.out,
+        tasks=study.tasks,
+        arms=study.arms,
+        train_seeds=study.train_seeds,
+        train=replace(demo.train, steps=study.train.steps),
+        glc=study.glc,
+        eval=replace(demo.eval, seed_start=study.eval.seed_start),
+        convergence_points=study.convergence_points,
+    )
+    assert to_dict(back) == to_dict(study)
+
+
+def test_the_demo_evaluates_on_setups_no_study_or_tuning_run_used():
+    """Its evaluation and alignment setups are disjoint from the study's (evaluation, convergence, alignment,
+    GLC demonstrations) and from every tuning run's (docs/records/tune-ft, validation setups), and inside the
+    experiments' range."""
+    from gazereg.envs.metaworld.setups import EXPERIMENTS
+    from gazereg.experiment import read_run
+    from gazereg.experiment.demos import GLC_OFFSET, HELDOUT_OFFSET
+
+    def used(start: int, episodes: int, heldout: int, glc: int) -> set[int]:
+        return (
+            set(range(start, start + episodes))
+            | set(range(start + HELDOUT_OFFSET, start + HELDOUT_OFFSET + heldout))
+            | set(range(start + GLC_OFFSET, start + GLC_OFFSET + glc))
+        )
+
+    demo, study = PRESETS["demo"](), PRESETS["ml45_study"]()
+    mine = used(demo.eval.seed_start, demo.eval.episodes, demo.heldout_per_task, 0)
+    theirs = used(study.eval.seed_start, study.eval.episodes, study.heldout_per_task, study.glc_demos_per_task)
+    tuning = [read_run(folder).config for folder in sorted(Path("docs/records/tune-ft").iterdir())]
+    assert len(tuning) >= 19
+    for c in tuning:
+        theirs |= used(c["eval"]["seed_start"], c["eval"]["episodes"], c["heldout_per_task"], c["glc_demos_per_task"])
+    assert not mine & theirs
+    assert min(mine) >= demo.demos_per_task + demo.demo_max_failures  # past the demonstrations and spares
+    assert all(EXPERIMENTS.contains(range(s, s + 1)) for s in mine)
+
+
+def test_the_demos_tasks_are_the_validation_choice():
+    """DEMO_TASKS recomputed from the tuning's baseline-recipe run (ft-steps6k) on validation setups: the two
+    held-out tasks whose success is nearest one half, ties to the earlier task in ML45's order."""
+    from gazereg.experiment import read_run
+    from gazereg.experiment.config_finetune import DEMO_TASKS
+
+    run = read_run("docs/records/tune-ft/ft-steps6k")
+    assert run.config["eval"]["seed_start"] == 1300 and run.arms == ("baseline",)
+    order = ml45_split().test
+    solved = {t: [r["success"] for r in run.episodes() if r["task"] == t] for t in order}
+    assert all(len(v) == 20 for v in solved.values())
+    ranked = sorted(order, key=lambda t: (abs(sum(solved[t]) / len(solved[t]) - 0.5), order.index(t)))
+    assert DEMO_TASKS == tuple(t for t in order if t in ranked[:2])
+
+
+def test_the_demo_is_gazereg_experiments_default():
+    from gazereg.runtime.config import parse
+
+    assert next(iter(PRESETS)) == "demo"
+    assert to_dict(parse(PRESETS, [], prog="gazereg experiment")) == to_dict(PRESETS["demo"]())

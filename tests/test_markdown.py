@@ -93,9 +93,11 @@ def test_a_task_level_analysis_makes_a_one_seed_block_the_powered_comparison(rep
     assert "## Seed level" not in block and "## Task level" in markdown(report)
 
 
-def test_the_quick_preset_names_make_demo(report):
-    report["preset"] = "quick"
+def test_the_demo_preset_names_make_demo(report):
+    report["preset"] = "demo"
     assert "(`make demo`)" in headline_lines(report)[0]
+    report["preset"] = "quick"
+    assert "(`gazereg experiment --preset quick`)" in headline_lines(report)[0]
 
 
 def test_sections_follow_the_reports_data(report):

@@ -347,7 +347,7 @@ START = re.compile(r"<!-- ([A-Za-z0-9_.-]+):start -->")
 def test_every_block_in_the_docs_is_on_exactly_one_page_and_readable(script):
     markers = {m.group(1) for page in DOCS_PAGES for m in START.finditer(page.read_text())}
     markers -= {"NAME"}  # prose that explains the marker lines
-    assert {"quick-results", "paper-results", "paper-robustness", "libero-results", "lerobot-e2e"} <= markers
+    assert {"demo-results", "quick-results", "paper-results", "paper-robustness", "libero-results", "lerobot-e2e"} <= markers
     for marker in sorted(markers):
         page = script.find_page(ROOT, marker)  # raises for none or two
         assert script.read_block(page, marker).strip(), marker

@@ -58,6 +58,7 @@ def two_cores(monkeypatch):
 ADDED_SINCE = {
     "experiment": {
         "aloha",
+        "demo",
         "ml45_finetune",
         "ml45_scratch",
         "ml45_study",
@@ -82,9 +83,10 @@ def test_every_preset_keeps_its_values_under_its_new_name(two_cores):
             assert _unchanged(before, to_dict(presets[new]())) == [], f"{kind} {old} -> {new}"
 
 
-def test_the_main_job_quick_resolves_as_before(two_cores):
-    """Every value of `make demo`'s configuration as before (options added to the configs since, such as
-    training's data.extra_instructions, are not in the snapshot)."""
+def test_quick_resolves_as_before(two_cores):
+    """Every value of `quick` (the main job until `make demo` became the generalist's fine-tuning, `demo`) as
+    before (options added to the configs since, such as training's data.extra_instructions, are not in the
+    snapshot)."""
     from gazereg.experiment.config import quick
 
     assert _unchanged(BEFORE["experiment"]["quick"], to_dict(quick())) == []

@@ -20,7 +20,7 @@ from gazereg.runtime.config import parse, split_preset
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     source, args = reuse.take_data_from(sys.argv[1:] if argv is None else argv)
-    preset, _ = split_preset(args, "quick")
+    preset, _ = split_preset(args, next(iter(PRESETS)))
     cfg = parse(PRESETS, args, prog="gazereg experiment", description=f"{RUNNER_DOC}\n{reuse.__doc__}")
     t0 = time.perf_counter()
     preflight(cfg)  # before --data-from copies anything

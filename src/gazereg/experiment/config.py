@@ -301,5 +301,6 @@ PRESETS = {
     "full": full,
     "sweep": sweep,
 }
-"""every experiment preset by name: these, and the other simulators' (`config_sims`: libero, libero_smoke,
-aloha), which register themselves here when the package is imported"""
+"""every experiment preset by name: these, the other simulators' (`config_sims`: libero, libero_smoke, aloha)
+and the pretraining study's (`config_finetune`), which register themselves here when the package is imported;
+the first, `gazereg experiment`'s default, is the main job `demo` (`config_finetune` puts it first)"""

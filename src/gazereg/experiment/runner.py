@@ -1,6 +1,7 @@
 """`gazereg experiment`: the whole pipeline, stage by stage, resumable (the README's main job).
 
-    gazereg experiment --preset quick            # make demo: 2 Meta-World tasks, baseline and gaze
+    gazereg experiment --preset demo             # make demo: the generalist fine-tuned on 2 held-out tasks
+    gazereg experiment --preset quick            # 2 Meta-World tasks from scratch, baseline and gaze
     gazereg experiment --preset smoke            # CI: the same code, tiny sizes
     gazereg experiment --preset paper --train-seeds 0 --out runs/paper-s0   # powered: 5 arms, one seed a sitting
     gazereg experiment --preset sweep            # 8 more Meta-World tasks drawn from the difficulty groups
