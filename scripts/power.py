@@ -15,6 +15,7 @@ the power at the --show sizes. Bad input: one line, exit 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
 
 from gazereg.evaluation.stats import mcnemar_power, paired_counts, pairs_for_power, pairs_for_power_normal
 from gazereg.experiment import read_run
@@ -29,7 +30,9 @@ def measured_pairs(
     finished = [read_run(path) for path in runs]
     known = {t for run in finished for t in run.tasks}
     if tasks and set(tasks) - known:
-        raise UsageError(f"--tasks {sorted(set(tasks) - known)} are not tasks of {runs} (their tasks: {sorted(known)})")
+        raise UsageError(
+            f"--tasks {sorted(set(tasks) - known)} are not tasks of {runs} (their tasks: {sorted(known)})"
+        )
     records = [
         r
         for run in finished
@@ -64,7 +67,9 @@ def main(argv: list[str] | None = None) -> int:
         if any(c is not None for c in counts):
             ap.error("give --run or the counts (--a-only, --b-only, --pairs), not both")
         try:
-            a_only, b_only, pairs = measured_pairs(args.run, args.arm, args.reference, args.condition, args.tasks)
+            a_only, b_only, pairs = measured_pairs(
+                args.run, args.arm, args.reference, args.condition, args.tasks
+            )
         except UsageError as e:
             ap.error(str(e))
         what = f"{args.arm} vs {args.reference}, {args.condition}, in {' '.join(args.run)}"
@@ -84,10 +89,8 @@ def main(argv: list[str] | None = None) -> int:
     approx = pairs_for_power_normal(a, b, args.power, args.alpha)
     need: int | str = f"more than {args.max_pairs} (about {approx:.0f} by the normal approximation)"
     if approx <= args.max_pairs / 2:  # the exact scan is quick only where few pairs are needed
-        try:
+        with contextlib.suppress(ValueError):  # past --max-pairs: the "more than" line stands
             need = pairs_for_power(a, b, args.power, args.alpha, limit=args.max_pairs)
-        except ValueError:
-            pass
     print(f"fewest pairs for power {args.power} at alpha {args.alpha}: {need}")
     for n in (int(x) for x in args.show.split(",") if x):
         print(f"  {n:4d} pairs: power {mcnemar_power(a, b, n, args.alpha):.3f}")

@@ -66,6 +66,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DOCS = Path("docs")  # relative to the repository root, like the two below: its *.md pages hold the blocks
 FIGURES = DOCS / "figures"
 README = Path("README.md")
+MAIN_JOB = "demo-results"  # the main job's block (make demo), the default --marker
 HEADLINE_SOURCE = "paper-results"  # the docs block whose head is the README's headline
 HEADLINE = "headline"  # the README's block
 PROG = "update_results.py"
@@ -184,7 +185,7 @@ def check(root: Path, run_dir: Path, marker: str) -> int:
         print(
             f"{where} predates the numerics key (it has no {DATA_PREFIX.strip()} line), so it cannot say which "
             f"machine and precision its numbers need: regenerate it with `python scripts/update_results.py "
-            f"{run_dir}{'' if marker == 'quick-results' else f' --marker {marker}'}` and commit it"
+            f"{run_dir}{'' if marker == MAIN_JOB else f' --marker {marker}'}` and commit it"
         )
         return 1
     assert run is not None  # results_block and pretrain_block always write the data line
@@ -276,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--marker",
-        default="quick-results",
+        default=MAIN_JOB,
         help="the block to replace (on whichever docs/*.md page holds it)",
     )
     ap.add_argument(

@@ -93,11 +93,15 @@ def test_the_demo_evaluates_on_setups_no_study_or_tuning_run_used():
 
     demo, study = PRESETS["demo"](), PRESETS["ml45_study"]()
     mine = used(demo.eval.seed_start, demo.eval.episodes, demo.heldout_per_task, 0)
-    theirs = used(study.eval.seed_start, study.eval.episodes, study.heldout_per_task, study.glc_demos_per_task)
+    theirs = used(
+        study.eval.seed_start, study.eval.episodes, study.heldout_per_task, study.glc_demos_per_task
+    )
     tuning = [read_run(folder).config for folder in sorted(Path("docs/records/tune-ft").iterdir())]
     assert len(tuning) >= 19
     for c in tuning:
-        theirs |= used(c["eval"]["seed_start"], c["eval"]["episodes"], c["heldout_per_task"], c["glc_demos_per_task"])
+        theirs |= used(
+            c["eval"]["seed_start"], c["eval"]["episodes"], c["heldout_per_task"], c["glc_demos_per_task"]
+        )
     assert not mine & theirs
     assert min(mine) >= demo.demos_per_task + demo.demo_max_failures  # past the demonstrations and spares
     assert all(EXPERIMENTS.contains(range(s, s + 1)) for s in mine)
@@ -115,7 +119,7 @@ def test_the_demos_tasks_are_the_validation_choice():
     solved = {t: [r["success"] for r in run.episodes() if r["task"] == t] for t in order}
     assert all(len(v) == 20 for v in solved.values())
     ranked = sorted(order, key=lambda t: (abs(sum(solved[t]) / len(solved[t]) - 0.5), order.index(t)))
-    assert DEMO_TASKS == tuple(t for t in order if t in ranked[:2])
+    assert tuple(t for t in order if t in ranked[:2]) == DEMO_TASKS
 
 
 def test_the_demo_is_gazereg_experiments_default():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 
@@ -18,7 +19,7 @@ def power(load_script):
 
 
 def test_the_runs_counts_are_its_reports_paired_table(power):
-    table = json.loads(open(f"{STUDY}/report.json").read())["paired"]["gaze vs baseline | clean"]
+    table = json.loads(Path(STUDY, "report.json").read_text())["paired"]["gaze vs baseline | clean"]
     assert power.measured_pairs([STUDY], "gaze", "baseline", "clean", None) == (
         table["gaze_only"],
         table["baseline_only"],

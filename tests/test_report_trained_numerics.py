@@ -153,7 +153,7 @@ def run_folder(tmp_path, name, machine):
 def test_check_compares_a_several_machines_run_by_agreement(script, tmp_path, capsys):
     repo = tmp_path / "repo"
     (repo / "docs").mkdir(parents=True)
-    (repo / "docs" / "main-job.md").write_text("<!-- quick-results:start -->\n<!-- quick-results:end -->\n")
+    (repo / "docs" / "main-job.md").write_text("<!-- demo-results:start -->\n<!-- demo-results:end -->\n")
     precisions = {"baseline@s0": "no", "gaze@s0": "no"}
     one = machine_summary(precisions, {"baseline@s0": on(INTEL), "gaze@s0": on(INTEL)})
     assert script.main([str(run_folder(tmp_path, "page", one)), "--root", str(repo)]) == 0
@@ -163,7 +163,7 @@ def test_check_compares_a_several_machines_run_by_agreement(script, tmp_path, ca
     out = capsys.readouterr().out
     assert "the run trained on several machines (float32 training on GenuineIntel, torch CPU" in out
     assert "not an exact comparison but a test of agreement" in out
-    assert "agrees with docs/main-job.md block 'quick-results' (not identical: different numerics)" in out
+    assert "agrees with docs/main-job.md block 'demo-results' (not identical: different numerics)" in out
     assert BlockData.read((repo / "docs" / "main-job.md").read_text()).numerics == INTEL
 
 

@@ -22,8 +22,8 @@ ROOT = Path(__file__).resolve().parents[1]
 GOLDEN = Path(__file__).parent / "report_golden"
 
 
-MAIN_JOB = "# Main job\n<!-- quick-results:start -->\nold quick\n<!-- quick-results:end -->\nmiddle\n"
-PAPER = "# Paper\nThe `<!-- quick-results:start -->` line is prose here.\n<!-- paper-results:start -->\nold paper\n<!-- paper-results:end -->\nend\n"
+MAIN_JOB = "# Main job\n<!-- demo-results:start -->\nold quick\n<!-- demo-results:end -->\nmiddle\n"
+PAPER = "# Paper\nThe `<!-- demo-results:start -->` line is prose here.\n<!-- paper-results:start -->\nold paper\n<!-- paper-results:end -->\nend\n"
 INDEX = "# Findings\n[main job](main-job.md)\n"
 
 
@@ -53,13 +53,11 @@ def test_a_run_block_goes_onto_the_page_that_holds_its_marker_with_its_figure(sc
     assert script.main([str(run), "--root", str(repo)]) == 0
     page = (repo / "docs" / "main-job.md").read_text()
     report = json.loads((run / "report.json").read_text())
-    block = results_block(report, "figures/quick-results-attention.png")
-    assert (
-        page == "# Main job\n<!-- quick-results:start -->\n" + block + "<!-- quick-results:end -->\nmiddle\n"
-    )
+    block = results_block(report, "figures/demo-results-attention.png")
+    assert page == "# Main job\n<!-- demo-results:start -->\n" + block + "<!-- demo-results:end -->\nmiddle\n"
     assert (repo / "docs" / "paper.md").read_text() == PAPER  # the marker inside prose is not a block
     assert (repo / "docs" / "README.md").read_text() == INDEX
-    assert (repo / "docs" / "figures" / "quick-results-attention.png").read_bytes() == b"png"
+    assert (repo / "docs" / "figures" / "demo-results-attention.png").read_bytes() == b"png"
     assert "old" in (repo / "README.md").read_text()  # only paper-results feeds the headline
 
 
@@ -126,12 +124,12 @@ def test_a_marker_on_two_pages_is_refused_naming_the_marker_and_both_pages(scrip
 
 
 def test_a_page_with_a_start_line_and_no_end_line_is_refused(script, repo, run, capsys):
-    (repo / "docs" / "main-job.md").write_text("# Main job\n<!-- quick-results:start -->\nold quick\n")
+    (repo / "docs" / "main-job.md").write_text("# Main job\n<!-- demo-results:start -->\nold quick\n")
     before = docs_bytes(repo)
     capsys.readouterr()
     assert script.main([str(run), "--root", str(repo)]) == 2
     assert (
-        "main-job.md has no single <!-- quick-results:start --> ... <!-- quick-results:end --> block (1 start and 0 end"
+        "main-job.md has no single <!-- demo-results:start --> ... <!-- demo-results:end --> block (1 start and 0 end"
         in (capsys.readouterr().err)
     )
     assert docs_bytes(repo) == before
@@ -210,12 +208,12 @@ def test_check_is_exact_when_the_numerics_keys_are_equal(script, repo, tmp_path,
     assert (
         script.main([str(quick_run(tmp_path, "same", DOCS, BF16_AMD)), "--root", str(repo), "--check"]) == 0
     )
-    assert "reproduces docs/main-job.md block 'quick-results' exactly (same numerics key: bf16 mixed" in (
+    assert "reproduces docs/main-job.md block 'demo-results' exactly (same numerics key: bf16 mixed" in (
         capsys.readouterr().out
     )
     page = repo / "docs" / "main-job.md"
     text = page.read_text()
-    start = text.index("<!-- quick-results:start -->\n") + len("<!-- quick-results:start -->\n")
+    start = text.index("<!-- demo-results:start -->\n") + len("<!-- demo-results:start -->\n")
     page.write_text(text[:start] + "Latest run: another date and wall time" + text[text.index("\n", start) :])
     assert script.main([str(page_run), "--root", str(repo), "--check"]) == 0  # the run line may differ
     # one success more: chance explains it, but equal keys must give equal numbers
@@ -223,7 +221,7 @@ def test_check_is_exact_when_the_numerics_keys_are_equal(script, repo, tmp_path,
     capsys.readouterr()
     assert script.main([str(closer), "--root", str(repo), "--check"]) == 1
     out = capsys.readouterr().out
-    assert "does not reproduce docs/main-job.md block 'quick-results' exactly although both have" in out
+    assert "does not reproduce docs/main-job.md block 'demo-results' exactly although both have" in out
     assert "29/50" in out
     page.write_text(text.replace("| baseline | 28/50", "| baseline | 27/50", 1))  # a table typed by hand
     assert script.main([str(page_run), "--root", str(repo), "--check"]) == 1
@@ -240,7 +238,7 @@ def test_check_tests_agreement_when_the_numerics_keys_differ(script, repo, tmp_p
     assert "not an exact comparison but a test of agreement" in out and "p >= 0.01/2 = 0.005" in out
     assert f"baseline x clean: page 28/50, run 17/50, p = {fisher_exact(28, 50, 17, 50):.3g}" in out
     assert "attention columns not tested" in out
-    assert "agrees with docs/main-job.md block 'quick-results' (not identical: different numerics)" in out
+    assert "agrees with docs/main-job.md block 'demo-results' (not identical: different numerics)" in out
 
 
 def test_check_fails_counts_that_chance_does_not_explain_naming_the_arm(script, repo, tmp_path, capsys):
@@ -258,7 +256,7 @@ def test_check_fails_counts_that_chance_does_not_explain_naming_the_arm(script, 
     p = fisher_exact(40, 50, 17, 50)
     assert p < 0.005
     assert last == (
-        f"{avx2} does not agree with docs/main-job.md block 'quick-results': baseline x clean: page 40/50, "
+        f"{avx2} does not agree with docs/main-job.md block 'demo-results': baseline x clean: page 40/50, "
         f"run 17/50, Fisher exact p = {p:.3g} < 0.005"
     )
 
@@ -281,7 +279,7 @@ def test_a_block_without_a_data_line_fails_and_says_to_regenerate_it(script, rep
     capsys.readouterr()
     assert script.main([str(run), "--root", str(repo), "--check"]) == 1
     assert capsys.readouterr().out == (
-        "docs/main-job.md block 'quick-results' predates the numerics key (it has no <!-- results:data line), "
+        "docs/main-job.md block 'demo-results' predates the numerics key (it has no <!-- results:data line), "
         "so it cannot say which machine and precision its numbers need: regenerate it with "
         f"`python scripts/update_results.py {run}` and commit it\n"
     )
@@ -329,10 +327,10 @@ def test_the_data_line_carries_the_key_counts_and_attention_and_reads_back(tmp_p
 def test_a_scripts_markdown_file_becomes_a_block(script, repo, tmp_path):
     md = tmp_path / "horizon.md"
     md.write_text("## Horizon\n\n| arm | n |\n|---|---|\n| gaze | 3 |\n\n")
-    assert script.main(["--file", str(md), "--marker", "quick-results", "--root", str(repo)]) == 0
+    assert script.main(["--file", str(md), "--marker", "demo-results", "--root", str(repo)]) == 0
     page = (repo / "docs" / "main-job.md").read_text()
     assert (
-        "<!-- quick-results:start -->\n## Horizon\n\n| arm | n |\n|---|---|\n| gaze | 3 |\n<!-- quick-results:end -->"
+        "<!-- demo-results:start -->\n## Horizon\n\n| arm | n |\n|---|---|\n| gaze | 3 |\n<!-- demo-results:end -->"
         in page
     )
     assert "middle" in page and (repo / "docs" / "paper.md").read_text() == PAPER
@@ -347,7 +345,14 @@ START = re.compile(r"<!-- ([A-Za-z0-9_.-]+):start -->")
 def test_every_block_in_the_docs_is_on_exactly_one_page_and_readable(script):
     markers = {m.group(1) for page in DOCS_PAGES for m in START.finditer(page.read_text())}
     markers -= {"NAME"}  # prose that explains the marker lines
-    assert {"demo-results", "quick-results", "paper-results", "paper-robustness", "libero-results", "lerobot-e2e"} <= markers
+    assert {
+        "demo-results",
+        "quick-results",
+        "paper-results",
+        "paper-robustness",
+        "libero-results",
+        "lerobot-e2e",
+    } <= markers
     for marker in sorted(markers):
         page = script.find_page(ROOT, marker)  # raises for none or two
         assert script.read_block(page, marker).strip(), marker

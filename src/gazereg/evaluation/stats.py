@@ -85,7 +85,9 @@ def pairs_for_power(
     raise ValueError(f"more than {limit} pairs needed for power {power} at these rates")
 
 
-def pairs_for_power_normal(a_only_rate: float, b_only_rate: float, power: float = 0.8, alpha: float = 0.05) -> float:
+def pairs_for_power_normal(
+    a_only_rate: float, b_only_rate: float, power: float = 0.8, alpha: float = 0.05
+) -> float:
     """Pairs a two-sided McNemar test at `alpha` needs for `power`, by the normal approximation (Connor 1987):
     (z_alpha/2 sqrt(d) + z_power sqrt(d - e^2))^2 / e^2 with d the discordant rate and e the rates'
     difference; inf when the rates are equal. Quick where the exact `pairs_for_power` would scan thousands."""

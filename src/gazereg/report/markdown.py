@@ -341,9 +341,7 @@ def markdown(report: dict[str, Any]) -> str:
 def headline_lines(report: dict[str, Any]) -> list[str]:
     """The head of `results_block`: one line on the run (when, where, how long, what) and the success table."""
     tr = report["train"]
-    command = (
-        "make demo" if report["preset"] == "demo" else f"gazereg experiment --preset {report['preset']}"
-    )
+    command = "make demo" if report["preset"] == "demo" else f"gazereg experiment --preset {report['preset']}"
     wall = f"wall time {report['wall_time_s'] / 60:.1f} min"
     if report.get("pooled_from"):  # one seed per folder (gazereg.experiment.pool)
         command = (
