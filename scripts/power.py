@@ -17,9 +17,9 @@ from __future__ import annotations
 import argparse
 import contextlib
 
-from gazereg.evaluation.stats import mcnemar_power, paired_counts, pairs_for_power, pairs_for_power_normal
+from gazereg.evaluation.stats import mcnemar_power, pairs_for_power, pairs_for_power_normal
 from gazereg.experiment import read_run
-from gazereg.report.tables import paired_by_setup, paired_name
+from gazereg.report.tables import paired_name, paired_tests
 from gazereg.runtime.errors import UsageError
 
 
@@ -39,12 +39,10 @@ def measured_pairs(
         for r in run.episodes()
         if r["condition"] == condition and (not tasks or r["task"] in tasks)
     ]
-    name = paired_name(arm, reference, condition)
-    for key, _, a, b in paired_by_setup(records, lambda r: bool(r["success"]), reference):
-        if key == name:
-            _, a_only, b_only, _ = paired_counts(a, b)
-            return a_only, b_only, len(a)
-    raise UsageError(f"{runs} have no episodes of {arm} paired with {reference} under {condition}")
+    table = paired_tests(records, reference).get(paired_name(arm, reference, condition))
+    if table is None:
+        raise UsageError(f"{runs} have no episodes of {arm} paired with {reference} under {condition}")
+    return table[f"{arm}_only"], table[f"{reference}_only"], table["pairs"]
 
 
 def main(argv: list[str] | None = None) -> int:
