@@ -323,7 +323,7 @@ def test_a_real_process_exits_2_with_one_line_and_the_traceback_only_when_asked(
     assert r.returncode == 2
     assert r.stderr.splitlines() == [
         "gazereg experiment: error: --arms: unknown arm 'nosuch'; choose from baseline, gaze, perturbed, "
-        "location, uniform, other_episode, blobs, saliency, glc"
+        "location, uniform, other_episode, same_task, blobs, saliency, glc"
     ]
     for verbose in (
         _gazereg("experiment", "--arms", "nosuch", "--verbose"),

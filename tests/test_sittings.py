@@ -42,10 +42,15 @@ def test_every_part_names_an_experiment_preset_and_every_arm_is_in_one_sitting_p
             assert all(len(g) <= max(1, cfg.parallel) for g in groups)
 
 
-def test_the_study_takes_both_arm_pairs_and_alternates_the_demonstration_counts_seed_by_seed():
-    names = [f"study{n}-s{seed}{pair}" for seed in (0, 1, 2) for n in (10, 50) for pair in ("", "-glc")]
+def test_the_study_takes_its_arm_pairs_and_alternates_the_demonstration_counts_seed_by_seed():
+    pairs = {10: ("", "-glc", "-same_task"), 50: ("", "-glc")}  # the task-region controls at 10 demos only
+    names = [f"study{n}-s{seed}{pair}" for seed in (0, 1, 2) for n in (10, 50) for pair in pairs[n]]
     assert names == [s.name for s in STUDY.sittings()]
-    assert STUDY.arm_groups(STUDY10) == [("baseline", "gaze"), ("glc", "uniform")]
+    assert STUDY.arm_groups(STUDY10) == [
+        ("baseline", "gaze"),
+        ("glc", "uniform"),
+        ("same_task", "other_episode"),
+    ]
 
 
 def test_a_sittings_command_is_its_arms_at_its_seed_with_the_first_sittings_data_when_here(tmp_path):

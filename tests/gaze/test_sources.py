@@ -1,3 +1,4 @@
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -89,7 +90,7 @@ def test_sharded_priors_cover_every_episode_once(store):
     assert all(store.has_prior("uniform", i) for i in store.indices())
 
 
-@pytest.mark.parametrize("mode", ["blobs", "shuffle", "other_episode"])
+@pytest.mark.parametrize("mode", ["blobs", "shuffle", "other_episode", "same_task"])
 def test_perturbed_controls(store, mode):
     make_priors(
         PriorsConfig(store=store.root, source="recorded", camera="cam", size=(16, 16)), progress=False
@@ -112,6 +113,41 @@ def test_perturbed_controls(store, mode):
     if mode == "shuffle":  # same values, other places
         np.testing.assert_allclose(np.sort(pert[0].ravel()), np.sort(base[0].ravel()), atol=1e-6)
         assert not np.allclose(pert[0], base[0])
+
+
+def test_same_task_gives_each_episode_another_demonstration_of_its_own_task(tmp_path):
+    """Two tasks whose gaze sits in opposite corners, three episodes each (gaze shifted per episode):
+    every same_task prior peaks where another episode of its own task looked, never where its own episode
+    or the other task looked; a task with a single episode is refused."""
+    s = EpisodeStore(tmp_path / "store", create=True)
+    tasks = {}
+    for task, (u, v) in (("a", (0.25, 0.25)), ("b", (0.75, 0.75))):
+        for k in range(3):
+            tasks[s.write(replace(square_episode(T=4 + k, pos=(u + 0.12 * k, v)), task=task))] = task
+    size = (16, 16)
+    make_priors(PriorsConfig(store=s.root, source="recorded", camera="cam", size=size), progress=False)
+    params = PerturbedParams(mode="same_task", base="recorded")
+    make_priors(PriorsConfig(store=s.root, source=params, name="st", camera="cam", size=size), progress=False)
+
+    def peak(name, i):
+        heat, valid = s.read_prior(name, i)
+        return np.unravel_index(heat[valid][0].argmax(), size)
+
+    places = {i: peak("recorded", i) for i in tasks}
+    assert len(set(places.values())) == len(places)  # every episode looked somewhere else
+    for i, task in tasks.items():
+        got = peak("st", i)
+        source = [j for j, place in places.items() if place == got]
+        assert source and source[0] != i and tasks[source[0]] == task
+
+    lone = EpisodeStore(tmp_path / "lone", create=True)
+    lone.write(replace(square_episode(T=4), task="a"))
+    lone.write(replace(square_episode(T=4), task="b"))
+    make_priors(PriorsConfig(store=lone.root, source="recorded", camera="cam", size=size), progress=False)
+    with pytest.raises(UsageError, match="at least two episodes of task 'a'"):
+        make_priors(
+            PriorsConfig(store=lone.root, source=params, name="st", camera="cam", size=size), progress=False
+        )
 
 
 def test_source_params_from_the_command_line_are_typed_once():

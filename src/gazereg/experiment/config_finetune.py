@@ -76,11 +76,13 @@ and layers; every gaze-term arm of the study uses it, the controls at the same w
 def ml45_study() -> ExperimentConfig:
     """The fine-tuning study (issue 36 item 4) at 10 demonstrations per task: `ml45_finetune` at the tuned
     recipe (6,000 steps) with the tuned gaze term (`STUDY_GAZE`); arms baseline, gaze (the visuomotor
-    prior), glc (`GLC_ML45`'s prediction from the video) and uniform (the term without any location); 3
+    prior), glc (`GLC_ML45`'s prediction from the video), uniform (the term without any location), same_task
+    (another demonstration of the same task's gaze: the task's region without the episode's locations) and
+    other_episode (another demonstration's, of any task); 3
     training seeds; 50 unseen setups per task (1,000..1,049), clean; success at 3 checkpoints on 10 setups
     per task (convergence). Two arms a sitting, side by side on one thread each: the 2 cores train more
     steps per second that way than with one run on both (benchmarks/bench_parallel.py, docs/speed.md), and
-    four arms do not fit a session (`gazereg sittings ml45-study` runs the sittings).
+    six arms do not fit a session (`gazereg sittings ml45-study` runs the sittings, two arms each).
 
         gazereg experiment --preset ml45_study --train-seeds 0 --arms baseline gaze --out runs/study10-s0
         gazereg experiment --preset ml45_study --train-seeds 0 --arms glc uniform --out runs/study10-s0-glc \
@@ -95,7 +97,7 @@ def ml45_study() -> ExperimentConfig:
     return replace(
         ft,
         out=Path("runs/ml45-study"),
-        arms=("baseline", "gaze", "glc", "uniform"),
+        arms=("baseline", "gaze", "glc", "uniform", "same_task", "other_episode"),
         train_seeds=(0, 1, 2),
         train=replace(ft.train, steps=6000, gaze=STUDY_GAZE),
         glc=GLCParams(checkpoint=GLC_ML45),
@@ -106,8 +108,11 @@ def ml45_study() -> ExperimentConfig:
 
 
 def ml45_study50() -> ExperimentConfig:
-    """`ml45_study` with 50 demonstrations per task (the same setups 0.. extended, the same evaluation)."""
-    return replace(ml45_study(), out=Path("runs/ml45-study50"), demos_per_task=50)
+    """`ml45_study` with 50 demonstrations per task (the same setups 0.. extended, the same evaluation),
+    without the task-region controls (same_task, other_episode): they ask whether the gain at 10 demos is the
+    episode's own gaze."""
+    study = ml45_study()
+    return replace(study, out=Path("runs/ml45-study50"), demos_per_task=50, arms=study.arms[:4])
 
 
 DEMO_TASKS = ("box-close-v3", "door-unlock-v3")

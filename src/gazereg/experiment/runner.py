@@ -33,9 +33,9 @@ stage eval; rerun the same command to resume", exit 143), a SIGKILL loses at mos
   report     report.json, report.md, figures
 
 Arms: baseline (no gaze term), gaze (the gaze source), perturbed (its patches shuffled), blobs (random
-blobs), other_episode (another episode's gaze), saliency, uniform, glc, location (the gaze prior predicted by
-a training-only head from the image features instead of imposed on attention: the control for the location
-information the prior carries).
+blobs), other_episode (another episode's gaze), same_task (another demonstration of the same task's gaze),
+saliency, uniform, glc, location (the gaze prior predicted by a training-only head from the image features
+instead of imposed on attention: the control for the location information the prior carries).
 """
 
 from __future__ import annotations

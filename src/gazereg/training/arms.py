@@ -222,6 +222,12 @@ for _arm in (
         description="another demonstration's gaze",
     ),
     Arm(
+        "same_task",
+        _perturbed("same_task", "same-task"),
+        control=True,
+        description="another demonstration of the same task's gaze: the task's region, not the episode's",
+    ),
+    Arm(
         "blobs", lambda cfg, _: PriorSpec("blobs", PerturbedParams(mode="blobs")), description="random blobs"
     ),
     Arm("saliency", lambda cfg, _: PriorSpec("saliency", SaliencyParams()), description="image saliency"),

@@ -4,8 +4,11 @@ Modes (all deterministic per episode and seed):
   blobs          10 random 5x5-cell squares per frame (the authors' corrupted-gaze variant, on our grid);
   shuffle        the base prior with its blocks of `block` x `block` cells spatially permuted (one
                  permutation per episode);
-  other_episode  the base prior of another episode (a fixed derangement), resampled in time to this length.
-`shuffle` and `other_episode` read an existing prior (`base`) from the same store.
+  other_episode  the base prior of another episode (a fixed derangement of the store's episodes, of any
+                 task), resampled in time to this length;
+  same_task      the same, deranged within each task's episodes: the task's region (where its objects
+                 tend to be) without this episode's locations; a task with one episode is refused.
+`shuffle`, `other_episode` and `same_task` read an existing prior (`base`) from the same store.
 """
 
 from __future__ import annotations
@@ -20,13 +23,14 @@ from gazereg.gaze.sources import register_gaze_source
 from gazereg.gaze.sources.params import GazeSourceParams
 from gazereg.runtime.errors import UsageError
 
-PerturbationMode = Literal["blobs", "shuffle", "other_episode"]
+PERTURBATION_MODES = ("blobs", "shuffle", "other_episode", "same_task")
+PerturbationMode = Literal["blobs", "shuffle", "other_episode", "same_task"]
 
 
 @dataclass(frozen=True)
 class PerturbedParams(GazeSourceParams):
     """`mode`: the perturbation (module docstring); `base`: the stored prior that `shuffle` and
-    `other_episode` perturb; `seed`; `n_blobs` squares of `blob_cells` x `blob_cells` cells per frame
+    `other_episode` and `same_task` perturb; `seed`; `n_blobs` squares of `blob_cells` x `blob_cells` cells per frame
     (`blobs`); `block`: side of the shuffled blocks, cells (`shuffle`)."""
 
     name: ClassVar[str] = "perturbed"
@@ -38,8 +42,10 @@ class PerturbedParams(GazeSourceParams):
     block: int = 8
 
     def __post_init__(self) -> None:
-        if self.mode not in ("blobs", "shuffle", "other_episode"):
-            raise UsageError(f"unknown perturbation {self.mode!r}; use blobs, shuffle or other_episode")
+        if self.mode not in PERTURBATION_MODES:
+            raise UsageError(
+                f"unknown perturbation {self.mode!r}; use one of {', '.join(PERTURBATION_MODES)}"
+            )
 
 
 @register_gaze_source(PerturbedParams)
@@ -51,13 +57,14 @@ class PerturbedGaze:
         self.mode, self.base, self.seed = params.mode, params.base, params.seed
         self.n_blobs, self.blob_cells, self.block = params.n_blobs, params.blob_cells, params.block
         self.store: EpisodeStore | None = None
+        self._tasks: dict[int, str] | None = None  # episode index -> task (`same_task`), read on first use
 
     def bind(self, store: EpisodeStore) -> None:
         """Give the source the store it reads base priors from (the prior pipeline calls this); a base prior
         the store does not hold is refused here, before anything is made (`MissingPriorError`)."""
         if self.mode != "blobs":
             store.prior_info(self.base)
-        self.store = store
+        self.store, self._tasks = store, None
 
     def describe(self) -> dict[str, Any]:
         d = {"name": self.name, "mode": self.mode, "seed": self.seed}
@@ -97,19 +104,26 @@ class PerturbedGaze:
             blocks = heat.reshape(T, gh, k, gw, k).transpose(0, 1, 3, 2, 4).reshape(T, gh * gw, k, k)
             blocks = blocks[:, rng.permutation(gh * gw)]
             return blocks.reshape(T, gh, gw, k, k).transpose(0, 1, 3, 2, 4).reshape(T, *size), valid
-        # other_episode: a derangement over the store's episodes, fixed by the seed
-        if self.store is None:
-            raise RuntimeError("perturbed gaze needs a store: call bind(store) before use")
-        indices = self.store.indices()
-        if len(indices) < 2:
-            raise UsageError("other_episode needs at least two episodes in the store")
-        perm = np.random.default_rng(self.seed).permutation(len(indices))
-        pos = indices.index(episode.index)
-        other = (
-            indices[perm[pos]]
-            if indices[perm[pos]] != episode.index
-            else indices[perm[(pos + 1) % len(indices)]]
-        )
-        heat, valid = self._base(other, size)
+        heat, valid = self._base(self._other(episode.index), size)
         src = np.clip(np.round(np.linspace(0, heat.shape[0] - 1, T)).astype(int), 0, heat.shape[0] - 1)
         return heat[src], valid[src]
+
+    def _other(self, index: int) -> int:
+        """The episode whose base prior episode `index` gets: a derangement, fixed by the seed, of the store's
+        episodes (`other_episode`) or of each task's (`same_task`)."""
+        if self.store is None:
+            raise RuntimeError("perturbed gaze needs a store: call bind(store) before use")
+        pool = self.store.indices()
+        if self.mode == "same_task":
+            if self._tasks is None:
+                self._tasks = {i: self.store.meta(i)["task"] for i in pool}
+            task = self._tasks[index]
+            pool = [i for i in pool if self._tasks[i] == task]
+            if len(pool) < 2:
+                raise UsageError(f"same_task needs at least two episodes of task {task!r} in the store")
+        elif len(pool) < 2:
+            raise UsageError("other_episode needs at least two episodes in the store")
+        perm = np.random.default_rng(self.seed).permutation(len(pool))
+        pos = pool.index(index)
+        other = pool[perm[pos]]
+        return other if other != index else pool[perm[(pos + 1) % len(pool)]]
