@@ -116,6 +116,27 @@ def test_train_and_eval_commands_write_their_outputs(store, tmp_path, capsys):
         assert 0 <= sc["f1"] <= 1 and 0 <= sc["recall"] <= 1
     assert "centre_prior" in capsys.readouterr().out
 
+    # episodes of another store (held-out tasks): its centre prior is fitted on the GLC's training store
+    # (--centre-from), the same as on that store itself; without it the store has no training episodes
+    other = write_synthetic_gaze_store(
+        tmp_path / "other", episodes=2, length=10, size=32, camera="cam", seed=5
+    )
+    cross = ["eval", "--store", str(other.root), "--checkpoint", str(out), "--episodes", "0", "1"]
+    assert glc_main([*cross, "--centre-from", str(store.root), "--out", str(tmp_path / "cross.json")]) == 0
+    fitted = json.loads((tmp_path / "cross.json").read_text())["centre_prior"]
+    assert fitted["fitted_on"] == {"store": str(store.root), "episodes": 2}
+    assert (
+        fitted["centre"] == rep["centre_prior"]["centre"] and fitted["sigma"] == rep["centre_prior"]["sigma"]
+    )
+    assert f"centre prior fitted on 2 training episodes of {store.root}" in capsys.readouterr().out
+    assert glc_main([*cross, "--out", str(tmp_path / "default.json")]) == 0
+    assert json.loads((tmp_path / "default.json").read_text())["centre_prior"]["fitted_on"] is None
+    assert "centre prior: the default (no training episodes" in capsys.readouterr().out
+    from gazereg import cli
+
+    assert cli.main(["glc", *cross, "--centre-from", str(tmp_path / "nowhere")]) == 2
+    assert f"--centre-from: {tmp_path / 'nowhere'} is not an episode store" in capsys.readouterr().err
+
 
 def test_cli_usage_and_errors(tmp_path, store, capsys):
     assert glc_main([]) == 0

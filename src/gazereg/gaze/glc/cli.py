@@ -62,6 +62,9 @@ class GLCEvalCommand(Validated):
     fixation_threshold: float = 0.0
     """if > 0, also score fixation frames only (gaze moved at most this much, normalised units, since the
     previous frame)"""
+    centre_from: Path | None = None
+    """the store whose training episodes fit the centre prior (the GLC's own training store when the
+    evaluated episodes are another store's, e.g. held-out tasks); default --store"""
     out: Path | None = None
     """JSON report; default <checkpoint folder>/eval.json"""
 
@@ -81,10 +84,12 @@ class GLCEvalCommand(Validated):
 
 
 def _episodes(
-    cfg: GLCEvalCommand, store: EpisodeStore, trained: dict[str, Any]
+    cfg: GLCEvalCommand, store: EpisodeStore, trained: dict[str, Any], centre: EpisodeStore
 ) -> tuple[list[int], list[int]]:
-    """(episodes to evaluate, training episodes for the centre prior): `--episodes`, else the training run's
-    held-out ones, else the `holdout_every` rule."""
+    """(episodes to evaluate, training episodes of `centre` for the centre prior): `--episodes`, else the
+    training run's held-out ones, else the `holdout_every` rule; the training episodes are the training
+    run's, else every episode not evaluated, those of `centre` (with `--centre-from`: every one the training
+    run's split does not hold out)."""
     if cfg.episodes:
         episodes = sorted(set(cfg.episodes))
         missing = [i for i in episodes if i not in store]
@@ -98,6 +103,10 @@ def _episodes(
     else:
         split = holdout_split(store, cfg.holdout_every)
         episodes, train = list(split.heldout), list(split.train)
+    if cfg.centre_from is not None:
+        held = set(trained.get("split", {}).get("heldout", ()))
+        train = trained.get("split", {}).get("train") or [i for i in centre.indices() if i not in held]
+        return episodes, [i for i in train if i in centre]
     return episodes, [i for i in train if i in store and i not in set(episodes)]
 
 
@@ -107,6 +116,9 @@ def eval_command(cfg: GLCEvalCommand) -> dict[str, Any]:
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
     store = EpisodeStore(cfg.store)
+    if cfg.centre_from is not None and not (cfg.centre_from / "store.json").exists():
+        raise UsageError(f"{option('centre_from')}: {cfg.centre_from} is not an episode store")
+    centre = store if cfg.centre_from is None else EpisodeStore(cfg.centre_from)
     folder = resolve_glc_folder(cfg.checkpoint)
     if folder is None and not cfg.checkpoint.exists():
         raise FileNotFoundError(f"--checkpoint {cfg.checkpoint} does not exist")
@@ -116,7 +128,7 @@ def eval_command(cfg: GLCEvalCommand) -> dict[str, Any]:
     camera = cfg.camera or trained.get("camera", "corner2")
     gaze_name = cfg.gaze_source or trained.get("gaze_source", "visuomotor")
     gaze_params = cfg.gaze_params if cfg.gaze_params is not None else tuple(trained.get("gaze_params", ()))
-    episodes, train_eps = _episodes(cfg, store, trained)
+    episodes, train_eps = _episodes(cfg, store, trained, centre)
     model = GLCParams(
         checkpoint=folder if folder is not None else cfg.checkpoint,
         config=cfg.config,
@@ -126,8 +138,19 @@ def eval_command(cfg: GLCEvalCommand) -> dict[str, Any]:
         batch_size=cfg.batch_size,
         device=cfg.device,
     )
-    source = gaze_points_source(parse_source_params(gaze_name, gaze_params), store)
-    rep = evaluate_glc(store, model, episodes, train_eps, camera, source, cfg.fixation_threshold)
+    params = parse_source_params(gaze_name, gaze_params)
+    source = gaze_points_source(params, store)
+    rep = evaluate_glc(
+        store,
+        model,
+        episodes,
+        train_eps,
+        camera,
+        source,
+        cfg.fixation_threshold,
+        centre_store=centre,
+        centre_source=source if centre is store else gaze_points_source(params, centre),
+    )
     rep["gaze_source"] = {"name": gaze_name, "params": list(gaze_params)}
     out = cfg.out or ((folder or cfg.checkpoint.parent) / "eval.json")
     atomic_write_json(Path(out), rep)

@@ -179,10 +179,15 @@ def evaluate_glc(
     camera: str,
     gaze_source: RecordedParams | GazeSource,
     fixation_threshold: float = 0.0,
+    centre_store: EpisodeStore | None = None,
+    centre_source: RecordedParams | GazeSource | None = None,
 ) -> dict[str, Any]:
     """GLC-paper metrics of the `glc` source built from `model` on `episodes` vs a centre prior (fitted on
     `train_episodes`' gaze) and the uniform map; maps are scored on the model's output grid over the whole
-    frame, against the points `gaze_source` (what `gaze_points_source` returns) gives.
+    frame, against the points `gaze_source` (what `gaze_points_source` returns) gives. `train_episodes` are
+    episodes of `centre_store` (default `store`: another store when the GLC trained on one and is evaluated
+    on another's episodes, e.g. held-out tasks), whose points `centre_source` gives (default `gaze_source`);
+    none: the default centre prior (`DEFAULT_CENTRE`), which the report says.
 
     Returns a JSON-able report: scores per frame subset (`all_valid`, and `fixation` when
     `fixation_threshold > 0`, normalised units per frame) and per method, F1 per task, and timing."""
@@ -196,8 +201,9 @@ def evaluate_glc(
     if not V.any():
         raise ValueError(f"episodes {list(episodes)} have no valid gaze point for camera {camera!r}")
     centre, sigma = DEFAULT_CENTRE
+    centre_store = store if centre_store is None else centre_store
     if train_episodes:
-        train = _gaze_of(store, train_episodes, camera, gaze_source)
+        train = _gaze_of(centre_store, train_episodes, camera, centre_source or gaze_source)
         centre, sigma = fit_center_prior(np.concatenate(train.points), np.concatenate(train.valid))
     methods = {
         "glc": pred,
@@ -220,7 +226,13 @@ def evaluate_glc(
         "map_size": list(size),
         "episodes": [int(i) for i in episodes],
         "train_episodes": [int(i) for i in train_episodes],
-        "centre_prior": {"centre": list(centre), "sigma": list(sigma)},
+        "centre_prior": {
+            "centre": list(centre),
+            "sigma": list(sigma),
+            "fitted_on": {"store": str(centre_store.root), "episodes": len(train_episodes)}
+            if train_episodes
+            else None,
+        },
         "scores": scores,
         "per_task": _per_task(held.frame_tasks(), pred, methods["centre_prior"], P, V),
         "glc_seconds": round(seconds, 3),
@@ -238,7 +250,12 @@ def _row(name: str, s: dict[str, Any]) -> str:
 
 def format_report(report: dict[str, Any]) -> str:
     """The scores of an `evaluate_glc` report as text: one line per subset and method, one per task."""
-    lines = []
+    fit = report.get("centre_prior", {}).get("fitted_on")
+    lines = [
+        f"centre prior fitted on {fit['episodes']} training episodes of {fit['store']}"
+        if fit
+        else "centre prior: the default (no training episodes to fit it on: --centre-from names a store)"
+    ]
     for sub, d in report["scores"].items():
         lines.append(f"{sub} frames of {indices_text(report['episodes'])}:")
         lines += [_row(name, s) for name, s in d.items()]

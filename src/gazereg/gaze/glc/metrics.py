@@ -12,7 +12,10 @@ Protocol (official GLC evaluation):
 5. AUC: per frame, a one-hot at the (truncated) centre of mass of the normalised prediction is blurred
    with a Gaussian (sigma 3.2 px on a 64-px map, scaled with the map), min-max normalised, and
    `AUC = 1 - fraction of pixels scoring higher than the pixel of the true gaze point`. The blur is
-   truncated at 4 sigma, so every miss farther than that scores the same (~0.95 on 64x64 maps).
+   truncated at 4 sigma, so every miss farther than that scores the same (~0.95 on 64x64 maps). The AUC
+   reads nothing of a map but its centre of mass: a uniform map scores exactly as a point at the frame's
+   centre does (and a centre prior as a point at its centre), high wherever the gaze clusters near the
+   centre; read F1 to tell a map from the centre.
 
 Under this protocol even a perfect prediction (the target map itself) has precision ~0.7: the
 binarised target (> 0.001) is narrower than the region above 2% of the normalised peak.
