@@ -45,7 +45,8 @@ def test_the_study_is_the_finetuning_preset_at_the_tunings_choice(load_script):
     assert study.train.init_from == tuned.train.init_from == GENERALIST
     for key in ("weight", "queries", "layers"):
         assert getattr(study.train.gaze, key) == getattr(tuned.train.gaze, key), key
-    assert study.arms == ("baseline", "gaze", "glc", "uniform", "same_task", "other_episode")
+    controls = ("same_task", "other_episode", "perturbed", "location")
+    assert study.arms == ("baseline", "gaze", "glc", "uniform", *controls)
     assert study50.arms == study.arms[:4] and study.train_seeds == (0, 1, 2)
     assert study.glc.checkpoint == GLC_ML45 and study.eval.seed_start == 1000
     assert (study.demos_per_task, study50.demos_per_task) == (10, 50)

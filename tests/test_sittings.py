@@ -43,13 +43,14 @@ def test_every_part_names_an_experiment_preset_and_every_arm_is_in_one_sitting_p
 
 
 def test_the_study_takes_its_arm_pairs_and_alternates_the_demonstration_counts_seed_by_seed():
-    pairs = {10: ("", "-glc", "-same_task"), 50: ("", "-glc")}  # the task-region controls at 10 demos only
+    pairs = {10: ("", "-glc", "-same_task", "-perturbed"), 50: ("", "-glc")}  # the other controls at 10 only
     names = [f"study{n}-s{seed}{pair}" for seed in (0, 1, 2) for n in (10, 50) for pair in pairs[n]]
     assert names == [s.name for s in STUDY.sittings()]
     assert STUDY.arm_groups(STUDY10) == [
         ("baseline", "gaze"),
         ("glc", "uniform"),
         ("same_task", "other_episode"),
+        ("perturbed", "location"),
     ]
 
 

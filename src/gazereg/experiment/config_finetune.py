@@ -77,12 +77,14 @@ def ml45_study() -> ExperimentConfig:
     """The fine-tuning study (issue 36 item 4) at 10 demonstrations per task: `ml45_finetune` at the tuned
     recipe (6,000 steps) with the tuned gaze term (`STUDY_GAZE`); arms baseline, gaze (the visuomotor
     prior), glc (`GLC_ML45`'s prediction from the video), uniform (the term without any location), same_task
-    (another demonstration of the same task's gaze: the task's region without the episode's locations) and
-    other_episode (another demonstration's, of any task); 3
+    (another demonstration of the same task's gaze: the task's region without the episode's locations),
+    other_episode (another demonstration's, of any task), perturbed (the episode's own gaze, its blocks
+    shuffled: wrong places, same statistics) and location (the same prior predicted by a training-only head
+    from the image features: the location information without attention supervision); 3
     training seeds; 50 unseen setups per task (1,000..1,049), clean; success at 3 checkpoints on 10 setups
     per task (convergence). Two arms a sitting, side by side on one thread each: the 2 cores train more
     steps per second that way than with one run on both (benchmarks/bench_parallel.py, docs/speed.md), and
-    six arms do not fit a session (`gazereg sittings ml45-study` runs the sittings, two arms each).
+    eight arms do not fit a session (`gazereg sittings ml45-study` runs the sittings, two arms each).
 
         gazereg experiment --preset ml45_study --train-seeds 0 --arms baseline gaze --out runs/study10-s0
         gazereg experiment --preset ml45_study --train-seeds 0 --arms glc uniform --out runs/study10-s0-glc \
@@ -97,7 +99,7 @@ def ml45_study() -> ExperimentConfig:
     return replace(
         ft,
         out=Path("runs/ml45-study"),
-        arms=("baseline", "gaze", "glc", "uniform", "same_task", "other_episode"),
+        arms=("baseline", "gaze", "glc", "uniform", "same_task", "other_episode", "perturbed", "location"),
         train_seeds=(0, 1, 2),
         train=replace(ft.train, steps=6000, gaze=STUDY_GAZE),
         glc=GLCParams(checkpoint=GLC_ML45),
@@ -109,8 +111,9 @@ def ml45_study() -> ExperimentConfig:
 
 def ml45_study50() -> ExperimentConfig:
     """`ml45_study` with 50 demonstrations per task (the same setups 0.. extended, the same evaluation),
-    without the task-region controls (same_task, other_episode): they ask whether the gain at 10 demos is the
-    episode's own gaze."""
+    without the controls that tell the episode's own gaze from any task-region prior (same_task,
+    other_episode, perturbed, location): they ask where gaze helps, at 10 demos (issue 36: the other controls
+    where gaze differs from the baseline)."""
     study = ml45_study()
     return replace(study, out=Path("runs/ml45-study50"), demos_per_task=50, arms=study.arms[:4])
 
