@@ -155,6 +155,18 @@ def _scores(pred: Any, pts: np.ndarray, valid: np.ndarray, mask: np.ndarray) -> 
     return {k: d[k] for k in ("f1", "recall", "precision", "threshold", "auc", "n_frames", "f1_curve")}
 
 
+def _centre_prior(store: EpisodeStore, episodes: Sequence[int], camera: str, source: Any) -> dict[str, Any]:
+    """The centre prior fitted on `episodes` of `store` (their points from `source`), else the default one:
+    `{"centre": [u, v], "sigma": [su, sv], "fitted_on": {"store", "episodes"} or None}` (normalised units)."""
+    if not episodes:
+        (u, v), (su, sv) = DEFAULT_CENTRE
+        return {"centre": [u, v], "sigma": [su, sv], "fitted_on": None}
+    train = _gaze_of(store, episodes, camera, source)
+    centre, sigma = fit_center_prior(np.concatenate(train.points), np.concatenate(train.valid))
+    fitted_on = {"store": str(store.root), "episodes": len(episodes)}
+    return {"centre": list(centre), "sigma": list(sigma), "fitted_on": fitted_on}
+
+
 def _per_task(
     tasks: np.ndarray, pred: np.ndarray, centre: np.ndarray, pts: np.ndarray, valid: np.ndarray
 ) -> dict[str, dict[str, Any]]:
@@ -200,11 +212,10 @@ def evaluate_glc(
     P, V = np.concatenate(held.points), np.concatenate(held.valid)
     if not V.any():
         raise ValueError(f"episodes {list(episodes)} have no valid gaze point for camera {camera!r}")
-    centre, sigma = DEFAULT_CENTRE
-    centre_store = store if centre_store is None else centre_store
-    if train_episodes:
-        train = _gaze_of(centre_store, train_episodes, camera, centre_source or gaze_source)
-        centre, sigma = fit_center_prior(np.concatenate(train.points), np.concatenate(train.valid))
+    centre_prior = _centre_prior(
+        store if centre_store is None else centre_store, train_episodes, camera, centre_source or gaze_source
+    )
+    centre, sigma = centre_prior["centre"], centre_prior["sigma"]
     methods = {
         "glc": pred,
         "centre_prior": center_prior_maps(pred.shape, centre, sigma).numpy(),
@@ -226,13 +237,7 @@ def evaluate_glc(
         "map_size": list(size),
         "episodes": [int(i) for i in episodes],
         "train_episodes": [int(i) for i in train_episodes],
-        "centre_prior": {
-            "centre": list(centre),
-            "sigma": list(sigma),
-            "fitted_on": {"store": str(centre_store.root), "episodes": len(train_episodes)}
-            if train_episodes
-            else None,
-        },
+        "centre_prior": centre_prior,
         "scores": scores,
         "per_task": _per_task(held.frame_tasks(), pred, methods["centre_prior"], P, V),
         "glc_seconds": round(seconds, 3),
