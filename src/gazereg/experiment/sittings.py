@@ -13,7 +13,9 @@ training seeds. A sitting is one group of arms of one part at one seed: the pres
 `parallel` (the arms that train side by side, one thread each on 2 cores), so a sitting trains only as long
 as one arm does. The first group's sitting is named `<part>-s<seed>`, the others `<part>-s<seed>-<first arm>`
 (`study10-s0`, `study10-s0-glc`). Order: seed by seed, and within a seed part by part, so a schedule stopped
-anywhere has its parts at (nearly) the same seeds. A sitting runs
+anywhere has its parts at (nearly) the same seeds; a part's follow-up groups (`Part.core`: the groups after its
+first `core`) come after every seed's core groups, seed by seed again: controls that are worth their
+sittings only if the core arms show something to explain. A sitting runs
 
     gazereg experiment --preset P --train-seeds S --arms A B --out runs/NAME [--data-from runs/<part's first>]
     gazereg archive runs/NAME --out docs/records/NAME
@@ -107,10 +109,13 @@ demonstrations (the pretraining's, from its demos stage) with their visuomotor g
 
 @dataclass(frozen=True)
 class Part:
-    """One experiment preset of a schedule: `name` prefixes its sittings and names its pool (runs/<name>)."""
+    """One experiment preset of a schedule: `name` prefixes its sittings and names its pool (runs/<name>);
+    `core`: how many of its arm groups run seed by seed first (None: all), the rest afterwards (module
+    docstring)."""
 
     name: str
     preset: str
+    core: int | None = None
 
 
 @dataclass(frozen=True)
@@ -153,11 +158,18 @@ class Schedule:
         return [tuple(cfg.arms[i : i + size]) for i in range(0, len(cfg.arms), size)]
 
     def sittings(self) -> list[Sitting]:
+        """Every sitting in the order they run: core groups seed by seed, then follow-up groups likewise."""
+        groups = {part: list(enumerate(self.arm_groups(part))) for part in self.parts}
+        phases = [
+            {p: g[: p.core] for p, g in groups.items()},
+            {p: [] if p.core is None else g[p.core :] for p, g in groups.items()},
+        ]
         return [
             Sitting(part, seed, arms, i == 0)
+            for phase in phases
             for seed in self.seeds
             for part in self.parts
-            for i, arms in enumerate(self.arm_groups(part))
+            for i, arms in phase[part]
         ]
 
     def first(self, part: Part) -> Sitting:
@@ -167,7 +179,7 @@ class Schedule:
 
 SCHEDULES: dict[str, Schedule] = {
     "ml45-study": Schedule(
-        (Part("study10", "ml45_study"), Part("study50", "ml45_study50")),
+        (Part("study10", "ml45_study", core=2), Part("study50", "ml45_study50")),
         prerequisites=(STUDY_GLC,),
         doc="issue 36's study: the ML45 generalist fine-tuned on the 5 held-out tasks, 10 and 50 demos",
     ),
