@@ -73,6 +73,13 @@ STUDY_GAZE = GazeConfig(weight=1e-3, queries="both", layers=(3,))
 and layers; every gaze-term arm of the study uses it, the controls at the same weight"""
 
 
+STUDY_ARMS = ("baseline", "gaze", "glc", "uniform")
+"""the study's arms at both demonstration counts"""
+
+STUDY_CONTROLS = ("same_task", "other_episode", "perturbed", "location")
+"""the controls that tell the episode's own gaze from any task-region prior, at 10 demonstrations only"""
+
+
 def ml45_study() -> ExperimentConfig:
     """The fine-tuning study (issue 36 item 4) at 10 demonstrations per task: `ml45_finetune` at the tuned
     recipe (6,000 steps) with the tuned gaze term (`STUDY_GAZE`); arms baseline, gaze (the visuomotor
@@ -99,7 +106,7 @@ def ml45_study() -> ExperimentConfig:
     return replace(
         ft,
         out=Path("runs/ml45-study"),
-        arms=("baseline", "gaze", "glc", "uniform", "same_task", "other_episode", "perturbed", "location"),
+        arms=(*STUDY_ARMS, *STUDY_CONTROLS),
         train_seeds=(0, 1, 2),
         train=replace(ft.train, steps=6000, gaze=STUDY_GAZE),
         glc=GLCParams(checkpoint=GLC_ML45),
@@ -114,8 +121,7 @@ def ml45_study50() -> ExperimentConfig:
     without the controls that tell the episode's own gaze from any task-region prior (same_task,
     other_episode, perturbed, location): they ask where gaze helps, at 10 demos (issue 36: the other controls
     where gaze differs from the baseline)."""
-    study = ml45_study()
-    return replace(study, out=Path("runs/ml45-study50"), demos_per_task=50, arms=study.arms[:4])
+    return replace(ml45_study(), out=Path("runs/ml45-study50"), demos_per_task=50, arms=STUDY_ARMS)
 
 
 DEMO_TASKS = ("box-close-v3", "door-unlock-v3")

@@ -116,9 +116,12 @@ def eval_command(cfg: GLCEvalCommand) -> dict[str, Any]:
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
     store = EpisodeStore(cfg.store)
-    if cfg.centre_from is not None and not (cfg.centre_from / "store.json").exists():
-        raise UsageError(f"{option('centre_from')}: {cfg.centre_from} is not an episode store")
-    centre = store if cfg.centre_from is None else EpisodeStore(cfg.centre_from)
+    centre = store
+    if cfg.centre_from is not None:
+        try:
+            centre = EpisodeStore(cfg.centre_from)
+        except FileNotFoundError as e:  # not a store: named as the option
+            raise UsageError(f"{option('centre_from')}: {e}") from e
     folder = resolve_glc_folder(cfg.checkpoint)
     if folder is None and not cfg.checkpoint.exists():
         raise FileNotFoundError(f"--checkpoint {cfg.checkpoint} does not exist")

@@ -14,7 +14,7 @@ Modes (all deterministic per episode and seed):
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal, get_args
 
 import numpy as np
 
@@ -23,8 +23,8 @@ from gazereg.gaze.sources import register_gaze_source
 from gazereg.gaze.sources.params import GazeSourceParams
 from gazereg.runtime.errors import UsageError
 
-PERTURBATION_MODES = ("blobs", "shuffle", "other_episode", "same_task")
 PerturbationMode = Literal["blobs", "shuffle", "other_episode", "same_task"]
+PERTURBATION_MODES: tuple[str, ...] = get_args(PerturbationMode)
 
 
 @dataclass(frozen=True)
