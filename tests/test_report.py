@@ -11,11 +11,13 @@ from gazereg.report import (
     paired_distance_tests,
     paired_tests,
     per_seed_table,
+    per_task_paired_tests,
     results_block,
     success_table,
     unit_level_tests,
     verdict,
 )
+from gazereg.report.comparisons import paired_lines
 
 
 def records(arm, successes, condition="clean", task="reach-v3", start=1000):
@@ -60,6 +62,34 @@ def test_paired_tests_pair_by_seed_and_task():
     ]
     v = verdict(success_table(records("baseline@s0", [1, 0]) + records("gaze@s0", [0, 1])))
     assert "overlap, so this budget does not decide" in v[0]
+
+
+def test_per_task_paired_tests_test_each_task_and_adjust_over_the_tasks():
+    recs = []
+    for task, gaze in (
+        ("box-close-v3", [1] * 12),
+        ("door-lock-v3", [0] * 6 + [1] * 6),
+        ("reach-v3", [0] * 12),
+    ):
+        recs += records("baseline@s0", [0] * 6 + [1] * 6, task=task) + records("gaze@s0", gaze, task=task)
+    tests = per_task_paired_tests(recs)["gaze vs baseline | clean"]
+    assert list(tests) == ["box-close-v3", "door-lock-v3", "reach-v3"]
+    box, lock, reach = tests.values()
+    assert (box["gaze_only"], box["baseline_only"], box["pairs"]) == (6, 0, 12)
+    assert (lock["gaze_only"], lock["baseline_only"], lock["mcnemar_p"]) == (0, 0, 1.0)
+    assert (reach["gaze_only"], reach["baseline_only"]) == (0, 6)
+    # 6 discordant pairs one way: p = 2 / 2^6; Holm multiplies the two smallest by 3 and 2, keeps them ordered
+    assert box["mcnemar_p"] == pytest.approx(2 / 64) and box["holm_p"] == pytest.approx(3 * 2 / 64)
+    assert reach["holm_p"] == pytest.approx(3 * 2 / 64) and lock["holm_p"] == 1.0
+    # The pooled test sees the two tasks cancel.
+    assert paired_tests(recs)["gaze vs baseline | clean"]["mcnemar_p"] == 1.0
+    report = {"paired": paired_tests(recs), "paired_per_task": {"gaze vs baseline | clean": tests}}
+    text = "\n".join(paired_lines(report))
+    assert "## Paired comparisons per task" in text
+    assert (
+        "| gaze vs baseline | clean | box-close-v3 | 12 | 6 | 0 | +0.50 [" in text
+        and "| 0.031 | 0.094 |" in text
+    )
 
 
 def test_seed_level_tests_take_the_seed_as_the_unit():

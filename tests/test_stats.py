@@ -6,6 +6,7 @@ import pytest
 from gazereg.evaluation.stats import (
     binom_two_sided,
     fisher_exact,
+    holm,
     mcnemar_exact,
     paired_rate_difference,
     steps_to_threshold,
@@ -159,3 +160,14 @@ def test_unit_mean_difference_uses_seeds_as_the_unit():
     for bad in ([0.1], [0.1, float("nan")]):
         with pytest.raises(ValueError):
             unit_mean_difference(bad)
+
+
+def test_holm_steps_down_and_keeps_the_input_order():
+    # sorted 0.01, 0.02, 0.04 times 3, 2, 1 -> 0.03, 0.04, 0.04 (made non-decreasing)
+    assert holm([0.04, 0.01, 0.02]) == pytest.approx([0.04, 0.03, 0.04])
+    assert holm([0.5, 0.6]) == pytest.approx([1.0, 1.0])  # capped at 1
+    assert holm([0.03]) == [0.03] and holm([]) == []
+    # a family-wise rate: never below the raw p, never above Bonferroni's
+    ps = [0.001, 0.2, 0.013, 0.04, 0.5]
+    for raw, adj in zip(ps, holm(ps), strict=True):
+        assert raw <= adj <= min(1.0, len(ps) * raw)

@@ -37,6 +37,19 @@ def binom_two_sided(k: int, n: int, p: float = 0.5) -> float:
     return min(1.0, sum(q for q in pmf if q <= pmf[k] * (1 + 1e-9)))
 
 
+def holm(p_values: Sequence[float]) -> list[float]:
+    """Holm's step-down adjustment of a family of p-values (a family-wise error rate of alpha when each adjusted
+    p is compared with alpha), in the input order: the i-th smallest p times (m - i), made non-decreasing in
+    that order and capped at 1."""
+    order = sorted(range(len(p_values)), key=lambda i: p_values[i])
+    out = [0.0] * len(p_values)
+    running = 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (len(p_values) - rank) * p_values[i]))
+        out[i] = running
+    return out
+
+
 def paired_counts(a: Sequence[bool], b: Sequence[bool]) -> tuple[int, int, int, int]:
     """The 2x2 table of two arms' outcomes on the same seeds: (both solved, only a, only b, neither)."""
     if len(a) != len(b):

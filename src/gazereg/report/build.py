@@ -27,6 +27,7 @@ from gazereg.report.tables import (
     paired_distance_tests,
     paired_tests,
     per_seed_table,
+    per_task_paired_tests,
     run_of,
     success_table,
     unit_level_tests,
@@ -116,6 +117,7 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
     controls = {c: gaze_and_control(episodes, spec.arms, c) for c in gaze_controls(spec.arms)}
     controls = {c: records for c, records in controls.items() if records}
     paired = paired_tests(episodes)
+    per_task = per_task_paired_tests(episodes) if len(spec.tasks) > 1 else {}
     levels = {"seed": unit_level_tests(episodes, "seed")}
     if len(spec.tasks) >= MIN_TASK_LEVEL_TASKS:
         levels["task"] = unit_level_tests(episodes, "task")
@@ -124,6 +126,8 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
     verdicts = verdict(success, paired=paired, levels=levels)
     for control, records in controls.items():
         paired.update(paired_tests(records, control))
+        if per_task:
+            per_task.update(per_task_paired_tests(records, control))
         for unit, tests in levels.items():
             tests.update(unit_level_tests(records, unit, control))
         distance.update(paired_distance_tests(records, reference=control))
@@ -138,6 +142,7 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
         **_header(spec, outputs),
         "success": success,
         "paired": paired,
+        "paired_per_task": per_task or None,
         "per_seed": per_seed_table(episodes) if len(spec.train_seeds) > 1 else None,
         "seed_level": levels["seed"] or None,
         "task_level": levels.get("task") or None,

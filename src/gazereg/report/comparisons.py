@@ -1,7 +1,7 @@
 """The paired comparisons of report.json as markdown tables: each arm against its reference on the same
-setups (`paired_lines`), the same comparisons with the training seed or the task as the unit
-(`unit_level_lines`), and the one row-per-comparison table writer they and the closest-approach tables share
-(`comparison_lines`).
+setups (`paired_lines`) and within each task (`per_task_paired_lines`), the same comparisons with the training
+seed or the task as the unit (`unit_level_lines`), and the one row-per-comparison table writer they and the
+closest-approach tables share (`comparison_lines`).
 """
 
 from __future__ import annotations
@@ -41,7 +41,8 @@ def comparison_lines(
 
 def paired_lines(report: dict[str, Any]) -> list[str]:
     """Each arm against the baseline on the same setups: the paired success difference with its interval,
-    exact McNemar and Fisher p-values."""
+    exact McNemar and Fisher p-values; then the same within each task where the report has them
+    (`per_task_paired_lines`)."""
     if not report.get("paired"):
         return []
     columns = ["pairs", "only A solved", "only B solved", "success A - B [95% CI]", "McNemar p", "Fisher p"]
@@ -61,7 +62,31 @@ def paired_lines(report: dict[str, Any]) -> list[str]:
                 f"{v['fisher_p']:.3f}",
             ],
         ),
+        *per_task_paired_lines(report),
     ]
+
+
+def per_task_paired_lines(report: dict[str, Any]) -> list[str]:
+    """The paired comparisons within each task (`tables.per_task_paired_tests`): one row per comparison,
+    condition and task, with the McNemar p and its Holm adjustment over the comparison's tasks."""
+    if not report.get("paired_per_task"):
+        return []
+    lines = [
+        "",
+        "## Paired comparisons per task (exact McNemar; Holm: adjusted over the comparison's tasks)",
+        "",
+        "| comparison (A vs B) | condition | task | pairs | only A solved | only B solved "
+        "| success A - B [95% CI] | McNemar p | Holm p |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, tests in report["paired_per_task"].items():
+        a, b, condition = split_paired_name(name)
+        for task, v in tests.items():
+            lines.append(
+                f"| {a} vs {b} | {condition} | {task} | {v['pairs']} | {v[f'{a}_only']} | {v[f'{b}_only']} "
+                f"| {rate_difference(v)} | {v['mcnemar_p']:.3f} | {v['holm_p']:.3f} |"
+            )
+    return lines
 
 
 def unit_level_table(

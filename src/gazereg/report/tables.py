@@ -20,6 +20,7 @@ import torch
 
 from gazereg.evaluation.stats import (
     fisher_exact,
+    holm,
     mcnemar_exact,
     paired_mean_difference,
     paired_rate_difference,
@@ -144,6 +145,25 @@ def paired_tests(records: list[dict[str, Any]], reference: str = "baseline") -> 
             "rate_ci95": d["ci95"],
         }
     return out
+
+
+def per_task_paired_tests(
+    records: list[dict[str, Any]], reference: str = "baseline"
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """`paired_tests` within each task: {comparison name: {task: its test plus `holm_p`}}, the McNemar p
+    adjusted by Holm over the comparison's tasks (a task-by-task reading looks at every task, so one task's
+    small p is read against the family). Tasks in the records' order."""
+    by_task: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for r in records:
+        by_task[r["task"]].append(r)
+    out: dict[str, dict[str, dict[str, Any]]] = defaultdict(dict)
+    for task, rows in by_task.items():
+        for name, test in paired_tests(rows, reference).items():
+            out[name][task] = test
+    for tests in out.values():
+        for test, p in zip(tests.values(), holm([t["mcnemar_p"] for t in tests.values()]), strict=True):
+            test["holm_p"] = p
+    return dict(out)
 
 
 Unit = Literal["seed", "task"]
