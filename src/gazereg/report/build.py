@@ -117,7 +117,8 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
     controls = {c: gaze_and_control(episodes, spec.arms, c) for c in gaze_controls(spec.arms)}
     controls = {c: records for c, records in controls.items() if records}
     paired = paired_tests(episodes)
-    per_task = per_task_paired_tests(episodes) if len(spec.tasks) > 1 else {}
+    several_tasks = len(spec.tasks) > 1
+    per_task = per_task_paired_tests(episodes) if several_tasks else {}
     levels = {"seed": unit_level_tests(episodes, "seed")}
     if len(spec.tasks) >= MIN_TASK_LEVEL_TASKS:
         levels["task"] = unit_level_tests(episodes, "task")
@@ -126,7 +127,7 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
     verdicts = verdict(success, paired=paired, levels=levels)
     for control, records in controls.items():
         paired.update(paired_tests(records, control))
-        if per_task:
+        if several_tasks:
             per_task.update(per_task_paired_tests(records, control))
         for unit, tests in levels.items():
             tests.update(unit_level_tests(records, unit, control))
