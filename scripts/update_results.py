@@ -41,7 +41,11 @@ line from the page and from the run's freshly rendered block:
 - a block without a data line (rendered before blocks carried one) fails, saying to regenerate it.
 It prints which comparison it made and why.
 
-Bad input (a marker on no page or on several, a run folder without report.json, a missing --file) is one line
+A run's block that lacks arms the page's block has (a pool that kept only the arm groups every seed has, say)
+is refused unless --drop-arms is given.
+
+Bad input (a marker on no page or on several, a run folder without report.json, a missing --file, a run
+missing arms the block has) is one line
 on stderr, `update_results.py: error: ...`, exit status 2, before any file is written.
 """
 
@@ -161,6 +165,15 @@ def produce_block(root: Path, run_dir: Path, marker: str, copy_figure: bool = Tr
     if is_pretraining(run_dir):
         return read_pretraining(run_dir).block()
     return run_block(root, run_dir, marker, copy_figure)
+
+
+def lost_arms(written: str, produced: str) -> list[str]:
+    """The arms the page's block counts successes for that the produced block does not (both read from their
+    data lines; none when either block has no data line)."""
+    page, run = BlockData.read(written), BlockData.read(produced)
+    if page is None or run is None:
+        return []
+    return sorted(set(page.success) - set(run.success))
 
 
 def block_differences(written: str, produced: str) -> list[str]:
@@ -289,6 +302,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--file", type=Path, help="write this markdown file (a script's output) as the block")
     ap.add_argument("--root", type=Path, default=ROOT, help="the repository to update (default: this one)")
     ap.add_argument(
+        "--drop-arms",
+        action="store_true",
+        help="write a run's block even where it lacks arms the page's block has (refused otherwise)",
+    )
+    ap.add_argument(
         "--check",
         action="store_true",
         help="change nothing; exit 1 if the run's block differs from the page's",
@@ -328,6 +346,12 @@ def _run(args: argparse.Namespace) -> int:
     if args.against:
         block = compare_markdown(compare_runs(args.against, args.run_dir), level=4)
     else:
+        lost = lost_arms(read_block(page, args.marker), produce_block(root, args.run_dir, args.marker, False))
+        if lost and not args.drop_arms:
+            return _usage_error(
+                f"{args.run_dir} lacks arm(s) {', '.join(lost)} that {where} has (a pool of fewer arms?); "
+                "--drop-arms writes it anyway"
+            )
         block = produce_block(root, args.run_dir, args.marker)
     replace_block(page, args.marker, block)
     print(f"{where} updated from {args.run_dir}")

@@ -227,6 +227,28 @@ def test_check_is_exact_when_the_numerics_keys_are_equal(script, repo, tmp_path,
     assert script.main([str(page_run), "--root", str(repo), "--check"]) == 1
 
 
+def test_a_run_with_fewer_arms_than_the_block_is_refused_unless_dropping_is_asked(
+    script, repo, tmp_path, capsys
+):
+    three = {**DOCS, "perturbed": (30, 50)}
+    assert script.main([str(quick_run(tmp_path, "three", three, FP32_AVX2)), "--root", str(repo)]) == 0
+    two = quick_run(tmp_path, "two", DOCS, FP32_AVX2)
+    before = docs_bytes(repo)
+    capsys.readouterr()
+    assert script.main([str(two), "--root", str(repo)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "lacks arm(s) perturbed" in err and "--drop-arms" in err
+    assert docs_bytes(repo) == before  # nothing written, the figure neither
+    assert script.main([str(two), "--root", str(repo), "--drop-arms"]) == 0
+    assert "| perturbed |" not in (repo / "docs" / "main-job.md").read_text()
+    assert (
+        script.main(
+            [str(quick_run(tmp_path, "four", {**three, "glc": (31, 50)}, FP32_AVX2)), "--root", str(repo)]
+        )
+        == 0
+    )
+
+
 def test_check_tests_agreement_when_the_numerics_keys_differ(script, repo, tmp_path, capsys):
     """Issue 33: float32 on an AVX2 CPU got 17/50 and 26/50 against the bf16 block's 28/50 and 32/50."""
     script.main([str(quick_run(tmp_path, "page", DOCS, BF16_AMD)), "--root", str(repo)])
