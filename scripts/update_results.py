@@ -148,23 +148,31 @@ def headline_of(block: str) -> str:
     return "\n".join(lines[:stop]) + "\n\n"
 
 
-def run_block(root: Path, run_dir: Path, marker: str, copy_figure: bool = True) -> str:
-    """The results block of the experiment in `run_dir`, its attention figure copied to docs/figures/ and linked
-    relative to the docs pages (figures/<marker>-attention.png)."""
+def figure_of(marker: str) -> Path:
+    """Where block `marker`'s attention figure lives, relative to the repository root."""
+    return FIGURES / f"{marker}-attention.png"
+
+
+def run_block(run_dir: Path, marker: str) -> str:
+    """The results block of the experiment in `run_dir`, its attention figure linked relative to the docs pages
+    (figures/<marker>-attention.png; `copy_figure` puts it there)."""
     report = json.loads((run_dir / "report.json").read_text())
-    figure = FIGURES / f"{marker}-attention.png"
-    if copy_figure:
-        (root / FIGURES).mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(run_dir / report["figures"]["attention"], root / figure)
-    return results_block(report, figure.relative_to(DOCS).as_posix())
+    return results_block(report, figure_of(marker).relative_to(DOCS).as_posix())
 
 
-def produce_block(root: Path, run_dir: Path, marker: str, copy_figure: bool = True) -> str:
+def copy_figure(root: Path, run_dir: Path, marker: str) -> None:
+    """Copy the experiment in `run_dir`'s attention figure to where its block links it (`figure_of`)."""
+    report = json.loads((run_dir / "report.json").read_text())
+    (root / FIGURES).mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(run_dir / report["figures"]["attention"], root / figure_of(marker))
+
+
+def produce_block(run_dir: Path, marker: str) -> str:
     """The block of `run_dir`: a pretraining's (`FinishedPretraining.block`; no figure) or an experiment's
     (`run_block`)."""
     if is_pretraining(run_dir):
         return read_pretraining(run_dir).block()
-    return run_block(root, run_dir, marker, copy_figure)
+    return run_block(run_dir, marker)
 
 
 def lost_arms(written: str, produced: str) -> list[str]:
@@ -191,7 +199,7 @@ def check(root: Path, run_dir: Path, marker: str) -> int:
     agree with them (`blockdata.agreement`, for different keys), else 1; prints which comparison it made and
     its outcome. A block without a data line (made before blocks carried one) fails: it must be regenerated."""
     docs_page = find_page(root, marker)
-    written, produced = read_block(docs_page, marker), produce_block(root, run_dir, marker, False)
+    written, produced = read_block(docs_page, marker), produce_block(run_dir, marker)
     where = f"{docs_page.relative_to(root).as_posix()} block {marker!r}"
     page, run = BlockData.read(written), BlockData.read(produced)
     if page is None:
@@ -346,13 +354,15 @@ def _run(args: argparse.Namespace) -> int:
     if args.against:
         block = compare_markdown(compare_runs(args.against, args.run_dir), level=4)
     else:
-        lost = lost_arms(read_block(page, args.marker), produce_block(root, args.run_dir, args.marker, False))
+        block = produce_block(args.run_dir, args.marker)
+        lost = lost_arms(read_block(page, args.marker), block)
         if lost and not args.drop_arms:
             return _usage_error(
                 f"{args.run_dir} lacks arm(s) {', '.join(lost)} that {where} has (a pool of fewer arms?); "
                 "--drop-arms writes it anyway"
             )
-        block = produce_block(root, args.run_dir, args.marker)
+        if not pretraining:
+            copy_figure(root, args.run_dir, args.marker)
     replace_block(page, args.marker, block)
     print(f"{where} updated from {args.run_dir}")
     if args.marker == HEADLINE_SOURCE:
