@@ -64,6 +64,9 @@ def test_pooled_folders_report_what_one_run_of_every_seed_and_arm_reports(tmp_pa
     assert f"(`{command}`)" in results_block(a, "x.png")  # the command that pools them again
 
     capsys.readouterr()  # refused, one line each: a run missing, runs twice, an arm not asked, another config
+    unnamed = [*SMALL[2:], *ARMS, "--train-seeds", "0", "1", *runs, "--out", str(pooled)]
+    assert cli.main(["pool", *unnamed]) == 2  # no default: the preset the runs were made with is asked for
+    assert "--preset NAME is required" in capsys.readouterr().err
     seeds3 = [*ARMS, "--train-seeds", "0", "1", "2"]
     assert cli.main(["pool", *SMALL, *seeds3, *runs, "--out", str(pooled)]) == 2
     assert "missing baseline@s2, gaze@s2, perturbed@s2, not asked for none" in capsys.readouterr().err

@@ -6,6 +6,8 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+import pytest
+
 from gazereg.envs.metaworld.ml45 import ml45_split
 from gazereg.experiment.config import PRESETS
 from gazereg.experiment.config_finetune import GENERALIST, GLC_ML45
@@ -124,8 +126,18 @@ def test_the_demos_tasks_are_the_validation_choice():
     assert tuple(t for t in order if t in ranked[:2]) == DEMO_TASKS
 
 
-def test_the_demo_is_gazereg_experiments_default():
-    from gazereg.runtime.config import parse
+def test_the_demo_is_gazereg_experiments_default(monkeypatch):
+    from gazereg.experiment import cli
+    from gazereg.experiment.presets import KINDS
 
-    assert next(iter(PRESETS)) == "demo"
-    assert to_dict(parse(PRESETS, [], prog="gazereg experiment")) == to_dict(PRESETS["demo"]())
+    class Built(Exception):
+        pass
+
+    def stop(cfg):
+        raise Built(cfg)
+
+    monkeypatch.setattr(cli, "preflight", stop)  # the configuration, before any work
+    with pytest.raises(Built) as built:
+        cli.main([])
+    assert to_dict(built.value.args[0]) == to_dict(PRESETS["demo"]())
+    assert KINDS[0].default_name() == "demo"  # `gazereg presets` stars it

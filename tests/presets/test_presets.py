@@ -115,6 +115,10 @@ def test_gazereg_presets_lists_every_preset_with_one_line(capsys):
         assert line, f"{kind.kind} {name} has no description"
         rows = [r for r in out if r.strip().startswith(name) and r.strip()[len(name) :][:2] in ("  ", "* ")]
         assert any(line in r for r in rows), (kind.kind, name)
+    assert cli.main(["presets", "--kind", "experiment"]) == 0
+    rows = [r.split()[0] for r in capsys.readouterr().out.splitlines() if r.startswith("  ")]
+    starred = [name for name in rows if name.endswith("*")]
+    assert starred == ["demo*"]  # `gazereg experiment`'s default, not the registry's first
     assert cli.main(["presets", "--kind", "GLC size"]) == 0
     assert capsys.readouterr().out.splitlines()[:3] == [
         "GLC size (--glc.config, config= of the glc gaze source, gazereg glc eval --config):",

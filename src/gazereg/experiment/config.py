@@ -302,5 +302,8 @@ PRESETS = {
     "sweep": sweep,
 }
 """every experiment preset by name: these, the other simulators' (`config_sims`: libero, libero_smoke, aloha)
-and the pretraining study's (`config_finetune`), which register themselves here when the package is imported;
-the first, `gazereg experiment`'s default, is the main job `demo` (`config_finetune` puts it first)"""
+and the pretraining study's (`config_finetune`), which register themselves here when the package is imported"""
+
+DEFAULT_PRESET = "demo"
+"""`gazereg experiment`'s preset without `--preset`: the main job, `make demo` (registered by `config_finetune`);
+`gazereg pool` has none (it takes the preset the pooled runs were made with)"""

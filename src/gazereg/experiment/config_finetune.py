@@ -166,5 +166,3 @@ PRESETS.update(
         "ml45_study50": ml45_study50,
     }
 )
-for _name in [n for n in PRESETS if n != "demo"]:  # `make demo`'s preset first: a command's default
-    PRESETS[_name] = PRESETS.pop(_name)

@@ -140,7 +140,7 @@ def take_runs(argv: Sequence[str]) -> tuple[list[Path], list[str]]:
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     sources, rest = take_runs(args)
-    preset, flags = split_preset(rest, "paper")
+    preset, flags = split_preset(rest, None)
     cfg = parse(PRESETS, ["--preset", preset, *flags], prog="gazereg pool", description=__doc__ or "")
     path = pool(cfg, preset, sources)
     print(path.read_text())

@@ -33,15 +33,25 @@ Factory = Callable[[], Any]
 
 @dataclass(frozen=True)
 class PresetKind:
-    """One kind of preset: its name, where it is used, and its presets by name (first = the default)."""
+    """One kind of preset: its name, where it is used, its presets by name, and the name its command takes
+    without `--preset` (`default`; None: the first)."""
 
     kind: str
     used_by: str
     presets: Callable[[], Mapping[str, Factory]]
+    default: str | None = None
+
+    def default_name(self) -> str:
+        return self.default or next(iter(self.presets()))
 
 
 KINDS: tuple[PresetKind, ...] = (
-    PresetKind("experiment", "gazereg experiment / pool --preset", lambda: experiment_config.PRESETS),
+    PresetKind(
+        "experiment",
+        "gazereg experiment / pool --preset (pool: required)",
+        lambda: experiment_config.PRESETS,
+        experiment_config.DEFAULT_PRESET,
+    ),
     PresetKind("training recipe", "gazereg train --preset", lambda: train_config.PRESETS),
     PresetKind("evaluation budget", "gazereg eval --preset", eval_config.presets),
     PresetKind("collection budget", "gazereg collect --preset", lambda: collect_config.PRESETS),
@@ -85,8 +95,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{kind.kind} ({kind.used_by}):")
         rows = catalogue((kind,))
         name_width = max(len(name) for _, name, _ in rows) + 1
-        for i, (_, name, line) in enumerate(rows):
-            mark = "*" if i == 0 and "--preset" in kind.used_by else ""
+        for _, name, line in rows:
+            mark = "*" if name == kind.default_name() and "--preset" in kind.used_by else ""
             print(f"  {name + mark:<{name_width}}  {line}")
     print("* the command's default preset")
     return 0

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from gazereg.experiment.archive import archive
-from gazereg.experiment.config import EXECUTION_KEYS, PRESETS, ExperimentConfig
+from gazereg.experiment.config import DEFAULT_PRESET, EXECUTION_KEYS, PRESETS, ExperimentConfig
 from gazereg.experiment.finished import FinishedRun, Record, read_run
 from gazereg.experiment.records import with_added_keys
 from gazereg.report.ids import RunId
@@ -64,7 +64,7 @@ def run_experiment(command: Sequence[str], root: Path) -> None:
 def built_config(command: tuple[str, ...]) -> ExperimentConfig:
     """The configuration the `gazereg experiment` command line `command` builds (UsageError, one line, for
     a bad option); cached, as a command builds the same configuration every time in one process."""
-    return parse(PRESETS, list(command[2:]), prog=" ".join(command[:2]))
+    return parse(PRESETS, list(command[2:]), prog=" ".join(command[:2]), default=DEFAULT_PRESET)
 
 
 def check_candidate(run: FinishedRun, command: Sequence[str]) -> None:

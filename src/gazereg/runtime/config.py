@@ -36,8 +36,9 @@ from gazereg.runtime.tyro_errors import tyro_errors_as_usage
 T = TypeVar("T")
 
 
-def split_preset(argv: Sequence[str], default: str) -> tuple[str, list[str]]:
-    """Remove `--preset NAME` / `--preset=NAME` from argv; returns (name, remaining args)."""
+def split_preset(argv: Sequence[str], default: str | None) -> tuple[str, list[str]]:
+    """Remove `--preset NAME` / `--preset=NAME` from argv; returns (name, remaining args). Without the flag
+    the name is `default`; a command with no default (`None`) refuses (UsageError) an argv without one."""
     rest: list[str] = []
     name = default
     it = iter(argv)
@@ -50,6 +51,8 @@ def split_preset(argv: Sequence[str], default: str) -> tuple[str, list[str]]:
             name = arg.split("=", 1)[1]
         else:
             rest.append(arg)
+    if name is None:
+        raise UsageError("--preset NAME is required")
     return name, rest
 
 
@@ -109,13 +112,20 @@ def choose(cfg: T, argv: Sequence[str], prefix: str = "") -> tuple[T, list[str]]
     return (dataclasses.replace(cfg, **updates) if updates else cfg), rest  # type: ignore[type-var]
 
 
-def parse(presets: dict[str, Callable[[], T]], argv: Sequence[str], prog: str, description: str = "") -> T:
-    """Build the config: preset defaults, then dotted overrides from argv."""
+def parse(
+    presets: dict[str, Callable[[], T]],
+    argv: Sequence[str],
+    prog: str,
+    description: str = "",
+    default: str | None = None,
+) -> T:
+    """Build the config: preset defaults, then dotted overrides from argv. Without `--preset` the preset is
+    `default` when given, else the registry's first."""
     import tyro
 
     if not presets:
         raise ValueError("no presets defined")
-    name, rest = split_preset(argv, default=next(iter(presets)))
+    name, rest = split_preset(argv, default=default or next(iter(presets)))
     if name not in presets:
         raise UsageError(f"unknown preset {name!r} for {prog}; choose one of {sorted(presets)}")
     base, rest = choose(presets[name](), rest)
