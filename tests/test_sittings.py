@@ -87,7 +87,7 @@ def _archive(root, *names):
         _touch(root / "docs" / "records" / name / "archive.json")
 
 
-def test_the_pool_takes_the_archived_seeds_at_the_arm_groups_each_has(tmp_path):
+def test_the_pool_takes_the_largest_complete_block_of_archived_seeds_and_arm_groups(tmp_path):
     assert sittings.pool_command(STUDY, STUDY10, tmp_path) is None
     _archive(tmp_path, "study10-s0", "study10-s0-glc", "study10-s2", "study50-s1-glc")
     assert sittings.pool_command(STUDY, STUDY10, tmp_path) == [
@@ -105,6 +105,15 @@ def test_the_pool_takes_the_archived_seeds_at_the_arm_groups_each_has(tmp_path):
     assert sittings.pool_command(STUDY, STUDY10, tmp_path)[7:16] == [
         "--arms", "baseline", "gaze", "glc", "uniform", "--runs", "docs/records/study10-s0",
         "docs/records/study10-s0-glc", "docs/records/study10-s2",
+    ]  # fmt: skip
+    # study50-s1-glc archived above; seed 2 opened:
+    _archive(tmp_path, "study50-s0", "study50-s0-glc", "study50-s1", "study50-s2")
+    assert sittings.pool_command(STUDY, STUDY50, tmp_path)[5:13] == [
+        "0", "1", "--arms", "baseline", "gaze", "glc", "uniform", "--runs",
+    ]  # fmt: skip  # 4 arms x 2 seeds, not 2 arms x 3 seeds: a new seed does not shrink the pool's arms
+    _archive(tmp_path, "study50-s2-glc")
+    assert sittings.pool_command(STUDY, STUDY50, tmp_path)[5:14] == [
+        "0", "1", "2", "--arms", "baseline", "gaze", "glc", "uniform", "--runs",
     ]  # fmt: skip
 
 

@@ -24,8 +24,8 @@ sittings only if the core arms show something to explain. A sitting runs
 demonstrations copied, not collected again; without it they are collected again from the same seeds), and is
 checked to be that command's run before it is archived. A sitting whose arms need something no sitting makes
 (the ML45 study's GLC, trained on the pretraining's demonstrations) builds it first (`Prerequisite`). The
-pool of a part takes the seeds archived so far at the arm groups every one of them has archived (a pool needs
-each of its arms at each of its seeds); `python scripts/update_results.py runs/<part> --marker <part>` puts it
+pool of a part takes the largest complete block archived so far (a pool needs each of its arms at each of its
+seeds: the seeds and arm groups that give the most runs, `pool_command`); `python scripts/update_results.py runs/<part> --marker <part>` puts it
 on its docs page.
 
 Run folders are under runs/ and archives under docs/records of the working directory (the repository root);
@@ -36,6 +36,7 @@ with another configuration) is one line and exit status 2 before anything runs.
 from __future__ import annotations
 
 import argparse
+import itertools
 import shlex
 import sys
 from collections.abc import Sequence
@@ -220,16 +221,25 @@ def run_sitting(schedule: Schedule, sitting: Sitting, root: Path, records: Path 
 
 
 def pool_command(schedule: Schedule, part: Part, root: Path, records: Path = RECORDS) -> list[str] | None:
-    """`gazereg pool` into runs/<part> of the part's archived sittings: the seeds with an archived sitting, at
-    the arm groups every one of them has archived; None when there is no such group."""
+    """`gazereg pool` into runs/<part> of the part's archived sittings: the largest complete block of them,
+    the training seeds and arm groups with every (seed, group) archived that hold the most runs (ties: more
+    seeds, then the earlier seeds), so a sitting that opens a seed (its first group only) does not shrink the
+    pool's arms; None when nothing is archived."""
     done = {
         (s.seed, s.arms): s for s in schedule.sittings() if s.part == part and is_archived(s, root, records)
     }
-    seeds = sorted({seed for seed, _ in done})
-    groups = [g for g in schedule.arm_groups(part) if seeds and all((x, g) in done for x in seeds)]
+    archived_seeds = sorted({seed for seed, _ in done})
+    best: tuple[int, tuple[int, ...], list[tuple[str, ...]]] = (0, (), [])
+    for k in range(len(archived_seeds), 0, -1):
+        for seeds in itertools.combinations(archived_seeds, k):
+            groups = [g for g in schedule.arm_groups(part) if all((x, g) in done for x in seeds)]
+            size = len(seeds) * sum(len(g) for g in groups)
+            if size > best[0]:
+                best = (size, seeds, groups)
+    _, seeds, groups = best
     if not groups:
         return None
-    runs = [(records / s.name).as_posix() for s in done.values() if s.arms in groups]
+    runs = [(records / done[x, g].name).as_posix() for x in seeds for g in groups]
     arms = [arm for g in groups for arm in g]
     cmd = ["gazereg", "pool", "--preset", part.preset, "--train-seeds", *map(str, seeds), "--arms", *arms]
     return [*cmd, "--runs", *runs, "--out", (RUNS / part.name).as_posix()]
