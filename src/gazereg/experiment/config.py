@@ -172,7 +172,7 @@ EXECUTION_KEYS = (
 
 # ----- presets ------------------------------------------------------------------------------------------------
 def quick() -> ExperimentConfig:
-    """The README's main job (`make demo`): baseline against gaze on reach-v3 and button-press-topdown-v3, 50
+    """From scratch, the main job before `demo`: baseline against gaze on reach-v3 and button-press-topdown-v3, 50
     demonstrations per task, one training seed, 5,000 steps of batch 32 (bf16 where the CPU has it), 25 unseen
     setups per task, clean condition only (robustness is the `paper` preset's job). Why this size, and its
     time: docs/presets.md."""
