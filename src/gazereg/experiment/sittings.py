@@ -25,8 +25,8 @@ demonstrations copied, not collected again; without it they are collected again 
 checked to be that command's run before it is archived. A sitting whose arms need something no sitting makes
 (the ML45 study's GLC, trained on the pretraining's demonstrations) builds it first (`Prerequisite`). The
 pool of a part takes the largest complete block archived so far (a pool needs each of its arms at each of its
-seeds: the seeds and arm groups that give the most runs, `pool_command`); `python scripts/update_results.py runs/<part> --marker <part>` puts it
-on its docs page.
+seeds: the seeds and arm groups that give the most runs, `pool_command`);
+`python scripts/update_results.py runs/<part> --marker <part>` puts it on its docs page.
 
 Run folders are under runs/ and archives under docs/records of the working directory (the repository root);
 `--records` names another archive folder. Bad input (an unknown schedule or sitting, a sitting that was run
@@ -229,10 +229,11 @@ def pool_command(schedule: Schedule, part: Part, root: Path, records: Path = REC
         (s.seed, s.arms): s for s in schedule.sittings() if s.part == part and is_archived(s, root, records)
     }
     archived_seeds = sorted({seed for seed, _ in done})
+    part_groups = schedule.arm_groups(part)
     best: tuple[int, tuple[int, ...], list[tuple[str, ...]]] = (0, (), [])
     for k in range(len(archived_seeds), 0, -1):
         for seeds in itertools.combinations(archived_seeds, k):
-            groups = [g for g in schedule.arm_groups(part) if all((x, g) in done for x in seeds)]
+            groups = [g for g in part_groups if all((x, g) in done for x in seeds)]
             size = len(seeds) * sum(len(g) for g in groups)
             if size > best[0]:
                 best = (size, seeds, groups)
