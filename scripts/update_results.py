@@ -44,7 +44,7 @@ It prints which comparison it made and why.
 A run's block that lacks arms the page's block has (a pool that kept only the arm groups every seed has, say)
 is refused unless --drop-arms is given.
 
-Bad input (a marker on no page or on several, a run folder without report.json, a missing --file, a run
+Bad input (a marker on no page or on several, a run folder without report.json (`read_report`), a missing --file, a run
 missing arms the block has) is one line
 on stderr, `update_results.py: error: ...`, exit status 2, before any file is written.
 """
@@ -52,12 +52,13 @@ on stderr, `update_results.py: error: ...`, exit status 2, before any file is wr
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import sys
 from pathlib import Path
+from typing import Any
 
 from gazereg.experiment.compare import compare_runs
+from gazereg.experiment.finished import read_report
 from gazereg.experiment.finished_pretrain import is_pretraining, read_pretraining
 from gazereg.report import results_block
 from gazereg.report.blockdata import DATA_PREFIX, FAMILY_ALPHA, BlockData, agreement, alignment_differences
@@ -153,26 +154,25 @@ def figure_of(marker: str) -> Path:
     return FIGURES / f"{marker}-attention.png"
 
 
-def run_block(run_dir: Path, marker: str) -> str:
-    """The results block of the experiment in `run_dir`, its attention figure linked relative to the docs pages
-    (figures/<marker>-attention.png; `copy_figure` puts it there)."""
-    report = json.loads((run_dir / "report.json").read_text())
+def run_block(report: dict[str, Any], marker: str) -> str:
+    """The results block of an experiment's (or a pool's) report, its attention figure linked relative to the
+    docs pages (figures/<marker>-attention.png; `copy_figure` puts it there)."""
     return results_block(report, figure_of(marker).relative_to(DOCS).as_posix())
 
 
-def copy_figure(root: Path, run_dir: Path, marker: str) -> None:
-    """Copy the experiment in `run_dir`'s attention figure to where its block links it (`figure_of`)."""
-    report = json.loads((run_dir / "report.json").read_text())
+def copy_figure(root: Path, run_dir: Path, report: dict[str, Any], marker: str) -> None:
+    """Copy the attention figure of `report` (the report of `run_dir`) to where its block links it
+    (`figure_of`)."""
     (root / FIGURES).mkdir(parents=True, exist_ok=True)
     shutil.copyfile(run_dir / report["figures"]["attention"], root / figure_of(marker))
 
 
 def produce_block(run_dir: Path, marker: str) -> str:
-    """The block of `run_dir`: a pretraining's (`FinishedPretraining.block`; no figure) or an experiment's
-    (`run_block`)."""
+    """The block of `run_dir`: a pretraining's (`FinishedPretraining.block`; no figure) or an experiment's or
+    a pool's (`run_block` of `read_report`)."""
     if is_pretraining(run_dir):
         return read_pretraining(run_dir).block()
-    return run_block(run_dir, marker)
+    return run_block(read_report(run_dir), marker)
 
 
 def lost_arms(written: str, produced: str) -> list[str]:
@@ -347,22 +347,21 @@ def _run(args: argparse.Namespace) -> int:
     pretraining = is_pretraining(args.run_dir)
     if args.against and pretraining:
         return _usage_error(f"--against compares experiments; {args.run_dir} is a pretraining folder")
-    if not args.against and not pretraining and not (args.run_dir / "report.json").is_file():
-        return _usage_error(f"{args.run_dir} has no report.json (not a finished experiment folder)")
+    report = None if args.against or pretraining else read_report(args.run_dir)  # UsageError when it has none
     if args.check:
         return check(root, args.run_dir, args.marker)
     if args.against:
         block = compare_markdown(compare_runs(args.against, args.run_dir), level=4)
     else:
-        block = produce_block(args.run_dir, args.marker)
+        block = read_pretraining(args.run_dir).block() if report is None else run_block(report, args.marker)
         lost = lost_arms(read_block(page, args.marker), block)
         if lost and not args.drop_arms:
             return _usage_error(
                 f"{args.run_dir} lacks arm(s) {', '.join(lost)} that {where} has (a pool of fewer arms?); "
                 "--drop-arms writes it anyway"
             )
-        if not pretraining:
-            copy_figure(root, args.run_dir, args.marker)
+        if report is not None:
+            copy_figure(root, args.run_dir, report, args.marker)
     replace_block(page, args.marker, block)
     print(f"{where} updated from {args.run_dir}")
     if args.marker == HEADLINE_SOURCE:

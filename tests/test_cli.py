@@ -1,8 +1,12 @@
 import subprocess
 import sys
+from dataclasses import dataclass
+
+import pytest
 
 from gazereg.cli import main
-from gazereg.runtime.config import split_preset
+from gazereg.runtime.config import parse_named, split_preset
+from gazereg.runtime.errors import UsageError
 
 
 def test_help_lists_available_commands(capsys):
@@ -20,6 +24,24 @@ def test_split_preset():
     assert split_preset(["--preset", "quick", "--a.b=1"], "smoke") == ("quick", ["--a.b=1"])
     assert split_preset(["--preset=paper"], "smoke") == ("paper", [])
     assert split_preset([], "smoke") == ("smoke", [])
+
+
+@dataclass
+class _Size:
+    width: int = 1
+
+
+_SIZES = {"one": _Size, "two": lambda: _Size(width=2)}
+
+
+def test_parse_named_returns_the_preset_it_chose_with_the_config():
+    assert parse_named(_SIZES, ["--width", "5"], prog="t") == ("one", _Size(width=5))  # the registry's first
+    assert parse_named(_SIZES, [], prog="t", default="two") == ("two", _Size(width=2))
+    assert parse_named(_SIZES, ["--preset", "two"], prog="t", required=True) == ("two", _Size(width=2))
+    with pytest.raises(UsageError, match="--preset NAME is required"):
+        parse_named(_SIZES, ["--width", "5"], prog="t", default="two", required=True)
+    with pytest.raises(UsageError, match="unknown preset 'three'"):
+        parse_named(_SIZES, ["--preset=three"], prog="t")
 
 
 def test_console_script_runs():

@@ -148,7 +148,7 @@ def test_a_run_folder_without_a_report_is_refused_in_one_line(script, repo, tmp_
     empty.mkdir()
     assert script.main([str(empty), "--root", str(repo)]) == 2
     assert capsys.readouterr().err == (
-        f"update_results.py: error: {empty} has no report.json (not a finished experiment folder)\n"
+        f"update_results.py: error: {empty} has no report.json (not a finished experiment or pooled report folder)\n"
     )
 
 

@@ -14,15 +14,16 @@ from gazereg.experiment.config import DEFAULT_PRESET, PRESETS
 from gazereg.experiment.preflight import preflight
 from gazereg.experiment.runner import Experiment
 from gazereg.experiment.runner import __doc__ as RUNNER_DOC
-from gazereg.runtime.config import parse, split_preset
+from gazereg.runtime.config import parse_named
 
 
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     source, args = reuse.take_data_from(sys.argv[1:] if argv is None else argv)
-    preset, _ = split_preset(args, DEFAULT_PRESET)
     description = f"{RUNNER_DOC}\n{reuse.__doc__}"
-    cfg = parse(PRESETS, args, prog="gazereg experiment", description=description, default=DEFAULT_PRESET)
+    preset, cfg = parse_named(
+        PRESETS, args, prog="gazereg experiment", description=description, default=DEFAULT_PRESET
+    )
     t0 = time.perf_counter()
     preflight(cfg)  # before --data-from copies anything
     if source is not None:

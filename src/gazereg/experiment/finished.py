@@ -93,6 +93,15 @@ def read_saved_config(folder: str | Path) -> dict[str, Any] | None:
     return json.loads(path.read_text()) if path.is_file() else None
 
 
+def read_report(folder: str | Path) -> dict[str, Any]:
+    """The report.json of a finished experiment, its archive, or a pooled report (`gazereg pool`) in `folder`
+    (`FinishedRun.report` for the first two); UsageError, one line, when `folder` has none."""
+    path = Path(folder) / REPORT_FILE
+    if not path.is_file():
+        raise UsageError(f"{folder} has no {REPORT_FILE} (not a finished experiment or pooled report folder)")
+    return json.loads(path.read_text())
+
+
 def read_episodes(eval_dir: str | Path) -> list[Record]:
     """The episode records of an evaluation folder's eval_info.json (its compressed copy in an archive)."""
     return json.loads(read_text(Path(eval_dir) / EVAL_INFO))["episodes"]

@@ -31,7 +31,7 @@ from gazereg.experiment.records import report_spec
 from gazereg.experiment.runner import Experiment
 from gazereg.report.build import StageOutputs, build_report, write_report
 from gazereg.report.ids import RunId
-from gazereg.runtime.config import parse, save_config, split_preset
+from gazereg.runtime.config import parse_named, save_config
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_json
 
@@ -140,8 +140,7 @@ def take_runs(argv: Sequence[str]) -> tuple[list[Path], list[str]]:
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     sources, rest = take_runs(args)
-    preset, flags = split_preset(rest, None)
-    cfg = parse(PRESETS, ["--preset", preset, *flags], prog="gazereg pool", description=__doc__ or "")
+    preset, cfg = parse_named(PRESETS, rest, prog="gazereg pool", description=__doc__ or "", required=True)
     path = pool(cfg, preset, sources)
     print(path.read_text())
     print(f"pooled {len(sources)} runs into {path}")

@@ -57,7 +57,7 @@ from gazereg.experiment.pretrain_config import (
 from gazereg.experiment.records import with_added_keys
 from gazereg.policies.base import CONFIG_FILE, MODEL_FILE, TOKENIZER_FILE
 from gazereg.runtime.clock import ResumableClock
-from gazereg.runtime.config import check_same_config, parse, save_config, split_preset, to_dict
+from gazereg.runtime.config import check_same_config, parse_named, save_config, to_dict
 from gazereg.runtime.errors import Terminated, annotate_interruption
 from gazereg.runtime.hardware import NumericsKey
 from gazereg.runtime.io import atomic_dir, atomic_write_json, sweep_stale_temps
@@ -308,8 +308,7 @@ def _tensor_sizes(path: Path) -> dict[str, int]:
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     args = list(sys.argv[1:] if argv is None else argv)
-    cfg = parse(PRESETS, args, prog="gazereg pretrain", description=__doc__ or "")
-    preset, _ = split_preset(args, next(iter(PRESETS)))
+    preset, cfg = parse_named(PRESETS, args, prog="gazereg pretrain", description=__doc__ or "")
     try:
         results = Pretraining(cfg, preset, args).run()
     except Paused as e:

@@ -112,20 +112,22 @@ def choose(cfg: T, argv: Sequence[str], prefix: str = "") -> tuple[T, list[str]]
     return (dataclasses.replace(cfg, **updates) if updates else cfg), rest  # type: ignore[type-var]
 
 
-def parse(
+def parse_named(
     presets: dict[str, Callable[[], T]],
     argv: Sequence[str],
     prog: str,
     description: str = "",
     default: str | None = None,
-) -> T:
-    """Build the config: preset defaults, then dotted overrides from argv. Without `--preset` the preset is
-    `default` when given, else the registry's first."""
+    required: bool = False,
+) -> tuple[str, T]:
+    """(the preset's name, the config): preset defaults, then dotted overrides from argv. Without `--preset`
+    the preset is `default` when given, else the registry's first; `required` refuses (UsageError) an argv
+    without `--preset`."""
     import tyro
 
     if not presets:
         raise ValueError("no presets defined")
-    name, rest = split_preset(argv, default=default or next(iter(presets)))
+    name, rest = split_preset(argv, default=None if required else default or next(iter(presets)))
     if name not in presets:
         raise UsageError(f"unknown preset {name!r} for {prog}; choose one of {sorted(presets)}")
     base, rest = choose(presets[name](), rest)
@@ -137,7 +139,18 @@ def parse(
     finally:
         _DEFER_VALIDATION.reset(token)
     validate_tree(cfg)
-    return cfg
+    return name, cfg
+
+
+def parse(
+    presets: dict[str, Callable[[], T]],
+    argv: Sequence[str],
+    prog: str,
+    description: str = "",
+    default: str | None = None,
+) -> T:
+    """The config of `parse_named` (for commands that do not record their preset's name)."""
+    return parse_named(presets, argv, prog, description, default)[1]
 
 
 # ----- tyro's refusals as one line ------------------------------------------------------------------------
