@@ -44,9 +44,9 @@ It prints which comparison it made and why.
 A run's block that lacks arms the page's block has (a pool that kept only the arm groups every seed has, say)
 is refused unless --drop-arms is given.
 
-Bad input (a marker on no page or on several, a run folder without report.json (`read_report`), a missing --file, a run
-missing arms the block has) is one line
-on stderr, `update_results.py: error: ...`, exit status 2, before any file is written.
+Bad input (a marker on no page or on several, a run folder without report.json (`read_report`), a missing
+--file, a run missing arms the block has) is one line on stderr, `update_results.py: error: ...`, exit status
+2, before any file is written.
 """
 
 from __future__ import annotations
@@ -167,12 +167,10 @@ def copy_figure(root: Path, run_dir: Path, report: dict[str, Any], marker: str) 
     shutil.copyfile(run_dir / report["figures"]["attention"], root / figure_of(marker))
 
 
-def produce_block(run_dir: Path, marker: str) -> str:
-    """The block of `run_dir`: a pretraining's (`FinishedPretraining.block`; no figure) or an experiment's or
-    a pool's (`run_block` of `read_report`)."""
-    if is_pretraining(run_dir):
-        return read_pretraining(run_dir).block()
-    return run_block(read_report(run_dir), marker)
+def produce_block(run_dir: Path, report: dict[str, Any] | None, marker: str) -> str:
+    """The block of `run_dir`: a pretraining's (`report` None: `FinishedPretraining.block`; no figure) or an
+    experiment's or a pool's (`run_block` of its report, as `read_report` read it)."""
+    return read_pretraining(run_dir).block() if report is None else run_block(report, marker)
 
 
 def lost_arms(written: str, produced: str) -> list[str]:
@@ -194,12 +192,13 @@ def block_differences(written: str, produced: str) -> list[str]:
     return out
 
 
-def check(root: Path, run_dir: Path, marker: str) -> int:
+def check(root: Path, run_dir: Path, report: dict[str, Any] | None, marker: str) -> int:
     """0 when the run's numbers are those of the docs block `marker` (exactly, for equal numerics keys) or
     agree with them (`blockdata.agreement`, for different keys), else 1; prints which comparison it made and
-    its outcome. A block without a data line (made before blocks carried one) fails: it must be regenerated."""
+    its outcome. A block without a data line (made before blocks carried one) fails: it must be regenerated.
+    `report`: the run's, as `produce_block` takes it."""
     docs_page = find_page(root, marker)
-    written, produced = read_block(docs_page, marker), produce_block(run_dir, marker)
+    written, produced = read_block(docs_page, marker), produce_block(run_dir, report, marker)
     where = f"{docs_page.relative_to(root).as_posix()} block {marker!r}"
     page, run = BlockData.read(written), BlockData.read(produced)
     if page is None:
@@ -347,13 +346,14 @@ def _run(args: argparse.Namespace) -> int:
     pretraining = is_pretraining(args.run_dir)
     if args.against and pretraining:
         return _usage_error(f"--against compares experiments; {args.run_dir} is a pretraining folder")
-    report = None if args.against or pretraining else read_report(args.run_dir)  # UsageError when it has none
+    reads_report = not pretraining and (args.check or not args.against)  # --check ignores --against
+    report = read_report(args.run_dir) if reads_report else None  # UsageError when it has none
     if args.check:
-        return check(root, args.run_dir, args.marker)
+        return check(root, args.run_dir, report, args.marker)
     if args.against:
         block = compare_markdown(compare_runs(args.against, args.run_dir), level=4)
     else:
-        block = read_pretraining(args.run_dir).block() if report is None else run_block(report, args.marker)
+        block = produce_block(args.run_dir, report, args.marker)
         lost = lost_arms(read_block(page, args.marker), block)
         if lost and not args.drop_arms:
             return _usage_error(

@@ -4,10 +4,10 @@
 the pretraining study's), `arms` what each arm trains on, `demos` and `glc` the
 demos stage's collections and the glc arm's GLC, `records` the saved config and the report's spec, `runner` the
 stages (see `gazereg.experiment.runner`), `finished` the one reader of a finished run folder or its archive
-(`read_run`; `read_report` also reads a pooled report's report.json), `finished_pretrain` that of a finished `gazereg pretrain` folder or its archive
-(`read_pretraining`), `pool` one report over folders that each ran some training seeds, `archive` a finished
-run's records to commit, `compare` two runs side by side, `reuse` a new folder from another's demos and
-priors, `cli` the command.
+(`read_run`; `read_report` also reads a pooled report's report.json), `finished_pretrain` that of a finished
+`gazereg pretrain` folder or its archive (`read_pretraining`), `pool` one report over folders that each ran
+some training seeds, `archive` a finished run's records to commit, `compare` two runs side by side, `reuse` a
+new folder from another's demos and priors, `cli` the command.
 Runs are named by `gazereg.report.ids.RunId` (arm, training seed, step).
 """
 
