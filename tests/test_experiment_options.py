@@ -17,10 +17,12 @@ from gazereg.experiment.arms import arm_prior, fold_tasks, glc_fold_dir
 from gazereg.experiment.config import PRESETS, paper, quick, smoke
 from gazereg.experiment.config_sims import libero, libero_smoke
 from gazereg.experiment.demos import demo_collections
+from gazereg.experiment.finished import recorded_precision
 from gazereg.experiment.runner import Experiment
 from gazereg.gaze.sources.glc_folds import GLCFoldsParams
 from gazereg.runtime.config import ConfigMismatch, to_dict
 from gazereg.runtime.errors import UsageError
+from gazereg.training.numerics import record_numerics
 
 
 def _saved_without(cfg, path: Path, *keys: str) -> None:
@@ -48,6 +50,39 @@ def test_a_run_folder_made_before_the_new_keys_resumes_while_they_keep_their_def
         Experiment(replace(cfg, demo_max_failures=0)).check_resumable()
     with pytest.raises(ConfigMismatch, match="eval.robustness_episodes: None -> 1"):
         Experiment(replace(cfg, eval=replace(cfg.eval, robustness_episodes=1))).check_resumable()
+
+
+def _trained_in(folder: Path, arm_precisions: dict[str, str | None]) -> None:
+    """Record each run's training in `folder` as this machine's, in its precision (None: a run made before
+    runs recorded their numerics: a folder without numerics.json)."""
+    for run, precision in arm_precisions.items():
+        (folder / "train" / run).mkdir(parents=True, exist_ok=True)
+        if precision is not None:
+            record_numerics(folder / "train" / run, precision, start=0)
+
+
+def test_a_folder_saved_with_auto_precision_is_the_pinned_precision_its_runs_trained_in(tmp_path):
+    auto = replace(quick(), out=tmp_path / "run")
+    auto = replace(auto, train=replace(auto.train, mixed_precision="auto"))
+    pinned = replace(auto, train=replace(auto.train, mixed_precision="no"))
+    _saved_without(auto, auto.out)
+    _trained_in(auto.out, {"baseline_s0": "no", "gaze_s0": "no"})
+    assert recorded_precision(auto.out) == "no"
+    Experiment(pinned).check_resumable()  # "auto" that trained in float32 everywhere is float32
+    Experiment(auto).check_resumable()  # and still itself
+    bf16 = replace(auto, train=replace(auto.train, mixed_precision="bf16"))
+    with pytest.raises(ConfigMismatch, match="train.mixed_precision: 'auto' -> 'bf16'"):
+        Experiment(bf16).check_resumable()
+    record_numerics(auto.out / "train" / "gaze_s0", "bf16", start=10)  # resumed where auto is bf16
+    assert recorded_precision(auto.out) is None
+    with pytest.raises(ConfigMismatch, match="train.mixed_precision: 'auto' -> 'no'"):
+        Experiment(pinned).check_resumable()
+
+
+@pytest.mark.parametrize("runs", [{}, {"baseline_s0": "no", "gaze_s0": None}, {"a_s0": "no", "b_s0": "bf16"}])
+def test_no_single_recorded_precision_leaves_auto_unresolved(tmp_path, runs):
+    _trained_in(tmp_path, runs)
+    assert recorded_precision(tmp_path) is None
 
 
 def test_the_existing_presets_keep_their_settings():

@@ -11,6 +11,7 @@ import pytest
 from gazereg.envs.metaworld.ml45 import ml45_split
 from gazereg.experiment.config import PRESETS
 from gazereg.experiment.config_finetune import GENERALIST, GLC_ML45
+from gazereg.experiment.finished import recorded_precision
 from gazereg.experiment.pretrain_config import PRESETS as PRETRAIN_PRESETS
 from gazereg.experiment.pretrain_config import finetune_flags
 from gazereg.experiment.tuning import built_config
@@ -53,6 +54,16 @@ def test_the_study_is_the_finetuning_preset_at_the_tunings_choice(load_script):
     assert study.glc.checkpoint == GLC_ML45 and study.eval.seed_start == 1000
     assert (study.demos_per_task, study50.demos_per_task) == (10, 50)
     assert to_dict(replace(study50, out=study.out, demos_per_task=10, arms=study.arms)) == to_dict(study)
+
+
+def test_the_study_trains_in_float32_as_every_archived_sitting_did():
+    """The study's sittings run on whichever CPU a session gets: the preset pins float32, and every archived
+    sitting's runs recorded float32 (those saved with "auto" before the pin included), so no block mixes
+    precisions."""
+    assert PRESETS["ml45_study"]().train.mixed_precision == "no"
+    sittings = sorted(Path("docs/records").glob("study*-s*"))
+    assert sittings, "no archived sitting of the study"
+    assert {s.name: recorded_precision(s) for s in sittings} == {s.name: "no" for s in sittings}
 
 
 def test_the_demo_is_the_study_shortened_on_two_held_out_tasks_of_its_own():

@@ -89,7 +89,8 @@ def ml45_study() -> ExperimentConfig:
     shuffled: wrong places, same statistics) and location (the same prior predicted by a training-only head
     from the image features: the location information without attention supervision); 3
     training seeds; 50 unseen setups per task (1,000..1,049), clean; success at 3 checkpoints on 10 setups
-    per task (convergence). Two arms a sitting, side by side on one thread each: the 2 cores train more
+    per task (convergence). Float32 on every CPU: its sittings run on whichever CPU a session gets, and a
+    block's pairs must not differ in precision (`auto` is bf16 on a CPU with native bf16). Two arms a sitting, side by side on one thread each: the 2 cores train more
     steps per second that way than with one run on both (benchmarks/bench_parallel.py, docs/speed.md), and
     eight arms do not fit a session (`gazereg sittings ml45-study` runs the sittings, two arms each).
 
@@ -108,7 +109,7 @@ def ml45_study() -> ExperimentConfig:
         out=Path("runs/ml45-study"),
         arms=(*STUDY_ARMS, *STUDY_CONTROLS),
         train_seeds=(0, 1, 2),
-        train=replace(ft.train, steps=6000, gaze=STUDY_GAZE),
+        train=replace(ft.train, steps=6000, gaze=STUDY_GAZE, mixed_precision="no"),
         glc=GLCParams(checkpoint=GLC_ML45),
         eval=replace(ft.eval, episodes=50),
         parallel=2,

@@ -31,7 +31,8 @@ def libero_suite(eval_preset: str, out: Path) -> ExperimentConfig:
     fewer where the expert fails, and the report counts them. glc: two fold GLCs (tasks 0-4 and 5-9), each
     trained 300 steps on the other half's demonstrations, so no task's glc prior comes from a GLC that saw its
     gaze. Success-versus-steps is not evaluated (`convergence_points=1`): a curve would cost another
-    evaluation per checkpoint."""
+    evaluation per checkpoint. Float32 on every CPU (`gazereg sittings` runs a suite's seeds on whichever CPU a
+    session gets; `auto` would make some sittings bf16)."""
     ev = eval_presets()[eval_preset]()
     tasks = ev.tasks
     t = cpu_train()
@@ -53,6 +54,7 @@ def libero_suite(eval_preset: str, out: Path) -> ExperimentConfig:
             steps=6000,
             batch_size=32,
             policy=dataclasses.replace(t.policy, image_hw=(128, 128), patch_size=16),
+            mixed_precision="no",
         ),
         parallel=2,
         eval=replace(
@@ -132,7 +134,8 @@ def aloha() -> ExperimentConfig:
     (visuomotor: the eyes lead each hand to its next target, cube then hand-over point; peg, socket, then the
     meeting point) and the uniform control, one training seed; 50 scripted demonstrations per task on setups
     0..49 (failed ones replaced from 50..69), 50 unseen evaluation episodes per task (setups 1000..1049) of the
-    env's 400 steps, clean (the evaluation budget `aloha-50`). The arms, tasks and seeds are fixed; the training length was not tuned on Aloha."""
+    env's 400 steps, clean (the evaluation budget `aloha-50`), float32 on every CPU (as the LIBERO suites). The
+    arms, tasks and seeds are fixed; the training length was not tuned on Aloha."""
     ev, t = eval_presets()["aloha-50"](), cpu_train()
     return ExperimentConfig(
         out=Path("runs/aloha"),
@@ -150,6 +153,7 @@ def aloha() -> ExperimentConfig:
             batch_size=32,
             policy=dataclasses.replace(t.policy, image_hw=(128, 128), patch_size=16),
             device="auto",
+            mixed_precision="no",
         ),
         parallel=2,
         eval=replace(ev, videos=1),

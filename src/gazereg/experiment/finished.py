@@ -29,7 +29,7 @@ checkpoints, demonstrations or priors.
 
 A folder is read only when it is finished: config.json and every stage but the report's; anything else is
 refused with one line (UsageError). `read_stage` and `read_saved_config` read one stage record or the config
-of a folder that may not be finished (a run resuming).
+of a folder that may not be finished (a run resuming); `recorded_precision` the precision its runs trained in.
 """
 
 from __future__ import annotations
@@ -91,6 +91,19 @@ def read_saved_config(folder: str | Path) -> dict[str, Any] | None:
     none."""
     path = Path(folder) / CONFIG_FILE
     return json.loads(path.read_text()) if path.is_file() else None
+
+
+def recorded_precision(folder: str | Path) -> str | None:
+    """The precision ("no", "bf16", "fp16") that every training attempt of every run in the experiment
+    `folder` recorded (train/*/numerics.json, `training.numerics`); None when no run recorded one, a run has
+    no record or an attempt of unknown numerics, or the attempts differ."""
+    run_dirs = sorted(p for p in (Path(folder) / "train").glob("*") if p.is_dir())
+    attempts = [read_numerics(d) for d in run_dirs]
+    if not attempts or any(a is None for a in attempts):
+        return None
+    keys = [t.key for a in attempts for t in a or ()]
+    precisions = {k.precision for k in keys if k is not None}
+    return precisions.pop() if len(precisions) == 1 and None not in keys else None
 
 
 def read_report(folder: str | Path) -> dict[str, Any]:

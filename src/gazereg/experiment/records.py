@@ -1,14 +1,16 @@
 """What an experiment writes about itself: its saved configuration, read back to resume, and the report's spec.
 
-check_same_config(with_added_keys(saved, to_dict(ExperimentConfig()), to_dict(cfg)), cfg, ...)
+check_same_config(as_saved_now(saved, folder, cfg), cfg, ...)   # folder's config.json against cfg
 report_spec(cfg, "quick")     # what report.md says the experiment ran
 """
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from gazereg.experiment.config import ExperimentConfig
+from gazereg.experiment.finished import recorded_precision
 from gazereg.report.build import ReportSpec
 from gazereg.runtime.config import to_dict
 from gazereg.training.arms import arm
@@ -27,6 +29,21 @@ def with_added_keys(saved: dict[str, Any], default: dict[str, Any], new: dict[st
             out[key] = default[key]
         elif isinstance(value, dict) and isinstance(out[key], dict) and isinstance(default[key], dict):
             out[key] = with_added_keys(out[key], default[key], value)
+    return out
+
+
+def as_saved_now(saved: dict[str, Any], folder: str | Path, cfg: ExperimentConfig) -> dict[str, Any]:
+    """The experiment `folder`'s saved config.json (`saved`) as `cfg` would save the same experiment: keys
+    added since completed (`with_added_keys`), and a training precision saved as "auto" counted as the one
+    every run of the folder recorded training in (`finished.recorded_precision`) when `cfg` names that
+    precision. Pinning a preset's precision (a study run in sittings on machines whose "auto" differs) keeps
+    the sittings that trained in that precision under "auto" its own; one that trained in another, or did not
+    record it, still differs."""
+    out = with_added_keys(saved, to_dict(ExperimentConfig()), to_dict(cfg))
+    pinned, train = cfg.train.mixed_precision, out.get("train")
+    auto = isinstance(train, dict) and train.get("mixed_precision") == "auto"
+    if auto and pinned != "auto" and recorded_precision(folder) == pinned:
+        out["train"] = {**train, "mixed_precision": pinned}
     return out
 
 

@@ -69,14 +69,14 @@ from gazereg.experiment.finished import (
 )
 from gazereg.experiment.glc import train_glc, train_glc_folds
 from gazereg.experiment.preflight import preflight
-from gazereg.experiment.records import report_spec, with_added_keys
+from gazereg.experiment.records import as_saved_now, report_spec
 from gazereg.gaze.priors import PriorsConfig, make_priors
 from gazereg.policies import load_policy
 from gazereg.report.build import build_report, write_report
 from gazereg.report.figures import attention_panels, plot_attention
 from gazereg.report.ids import RunId
 from gazereg.runtime.clock import ResumableClock
-from gazereg.runtime.config import check_same_config, save_config, to_dict
+from gazereg.runtime.config import check_same_config, save_config
 from gazereg.runtime.errors import Terminated, UsageError, annotate_interruption
 from gazereg.runtime.io import atomic_write_json, sweep_stale_temps
 from gazereg.runtime.pool import exit_with_parent
@@ -114,12 +114,13 @@ class Experiment:
     ) -> None:
         """Refuse to continue a run folder whose finished stages were made with another configuration: they
         would be skipped and reported as this configuration's results. A key added to the configuration
-        since the folder was made counts as its default (`records.with_added_keys`)."""
+        since the folder was made counts as its default, an "auto" precision as the one its runs recorded
+        (`records.as_saved_now`)."""
         saved = read_saved_config(self.out)
         if saved is None:
             return
         check_same_config(
-            with_added_keys(saved, to_dict(ExperimentConfig()), to_dict(self.cfg)),
+            as_saved_now(saved, self.out, self.cfg),
             self.cfg,
             ("out", *EXECUTION_KEYS),
             self.out,

@@ -29,9 +29,9 @@ from typing import Any
 from gazereg.experiment.archive import archive
 from gazereg.experiment.config import DEFAULT_PRESET, EXECUTION_KEYS, PRESETS, ExperimentConfig
 from gazereg.experiment.finished import FinishedRun, Record, read_run
-from gazereg.experiment.records import with_added_keys
+from gazereg.experiment.records import as_saved_now
 from gazereg.report.ids import RunId
-from gazereg.runtime.config import check_same_config, parse, to_dict
+from gazereg.runtime.config import check_same_config, parse
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_text
 
@@ -73,7 +73,7 @@ def check_candidate(run: FinishedRun, command: Sequence[str]) -> None:
     but for the execution keys and the output folder."""
     built = built_config(tuple(command))
     check_same_config(
-        with_added_keys(run.config, to_dict(ExperimentConfig()), to_dict(built)),
+        as_saved_now(run.config, run.path, built),
         built,
         (*EXECUTION_KEYS, "out"),
         run.path,
