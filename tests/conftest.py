@@ -66,3 +66,16 @@ def load_script():
 def script():
     """scripts/update_results.py loaded as a module: the script that writes and checks the docs' blocks."""
     return _load_script("scripts/update_results.py")
+
+
+@pytest.fixture(autouse=True)
+def _fresh_accelerate():
+    """Each test starts with accelerate's process-wide state forgotten, as a new `gazereg train` process does:
+    accelerate keeps one mixed precision per process and refuses an Accelerator with another, so a test that
+    trained under "auto" (bf16 on a CPU with native bf16) must not decide the precision of a later test in the
+    same worker (tests that pin float32 failed after one on an AMX CPU)."""
+    from accelerate.state import AcceleratorState, GradientState
+
+    AcceleratorState._reset_state(reset_partial_state=True)
+    GradientState._reset_state()
+    yield
