@@ -41,17 +41,10 @@ def reset_accelerate() -> None:
     GradientState._reset_state()
 
 
-@pytest.fixture(autouse=True)
-def fresh_accelerate():
-    """accelerate keeps one mixed precision per process and refuses an Accelerator with another one, so each
-    test starts and ends with a clean state (runs here use both precisions; later tests must not inherit one)."""
-    reset_accelerate()
-    yield
-    reset_accelerate()
-
-
 def train_fresh(c):
-    """`train` as in its own process (see `fresh_accelerate`)."""
+    """`train` as in its own process: accelerate keeps one mixed precision per process and refuses an
+    Accelerator with another one, and tests here train in both (each test starts with a clean state:
+    tests/conftest.py's `_fresh_accelerate`)."""
     reset_accelerate()
     return train(c)
 

@@ -90,9 +90,10 @@ def ml45_study() -> ExperimentConfig:
     from the image features: the location information without attention supervision); 3
     training seeds; 50 unseen setups per task (1,000..1,049), clean; success at 3 checkpoints on 10 setups
     per task (convergence). Float32 on every CPU: its sittings run on whichever CPU a session gets, and a
-    block's pairs must not differ in precision (`auto` is bf16 on a CPU with native bf16). Two arms a sitting, side by side on one thread each: the 2 cores train more
-    steps per second that way than with one run on both (benchmarks/bench_parallel.py, docs/speed.md), and
-    eight arms do not fit a session (`gazereg sittings ml45-study` runs the sittings, two arms each).
+    block's pairs must not differ in precision (`auto` is bf16 on a CPU with native bf16). Two arms a
+    sitting, side by side on one thread each: the 2 cores train more steps per second that way than with one
+    run on both (benchmarks/bench_parallel.py, docs/speed.md), and eight arms do not fit a session
+    (`gazereg sittings ml45-study` runs the sittings, two arms each).
 
         gazereg experiment --preset ml45_study --train-seeds 0 --arms baseline gaze --out runs/study10-s0
         gazereg experiment --preset ml45_study --train-seeds 0 --arms glc uniform --out runs/study10-s0-glc \
