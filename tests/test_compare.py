@@ -9,6 +9,7 @@ from gazereg.experiment.finished import STAGES, read_run
 from gazereg.report.compare import compare_markdown, compare_records, compare_tasks
 from gazereg.runtime.config import config_diff
 from gazereg.runtime.errors import UsageError
+from gazereg.training.numerics import record_numerics
 
 ROOT = Path(__file__).resolve().parents[1]
 ARCHIVE_B, ARCHIVE_C = ROOT / "docs" / "records" / "paper-abl-b", ROOT / "docs" / "records" / "paper-abl-c"
@@ -129,6 +130,22 @@ def test_a_key_added_since_the_older_run_counts_at_its_default(tmp_path):
     jitter = {"out": "jit", "train": {"steps": 3000, "photometric": {**zeros, "brightness": 0.2}}}
     jit = write_run(tmp_path, "jit", jitter, records("gaze@s0", [1, 1]))
     assert compare_runs(old, jit)["differences"] == {"train.photometric.brightness": [0.0, 0.2]}
+
+
+def test_a_precision_saved_as_auto_is_compared_as_the_precision_its_runs_trained_in(tmp_path):
+    """ "auto" is bf16 on a CPU with native bf16 and float32 elsewhere: a run saved with it differs from a
+    pinned run only when its runs recorded training in another precision (or recorded nothing)."""
+    auto = write_run(
+        tmp_path, "auto", {"out": "a", "train": {"mixed_precision": "auto"}}, records("gaze@s0", [1])
+    )
+    pinned = write_run(
+        tmp_path, "no", {"out": "b", "train": {"mixed_precision": "no"}}, records("gaze@s0", [1])
+    )
+    assert compare_runs(auto, pinned)["differences"] == {"train.mixed_precision": ["auto", "no"]}  # no record
+    record_numerics(auto / "train" / "gaze_s0", "no", start=0)
+    assert compare_runs(auto, pinned)["differences"] == {}
+    record_numerics(auto / "train" / "gaze_s0", "bf16", start=0)
+    assert compare_runs(auto, pinned)["differences"] == {"train.mixed_precision": ["bf16", "no"]}
 
 
 def test_compare_a_folder_that_is_no_finished_run_says_so_in_one_line(tmp_path, capsys):

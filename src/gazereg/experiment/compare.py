@@ -14,7 +14,7 @@ from typing import Any, NoReturn
 
 from gazereg.experiment.config import ExperimentConfig
 from gazereg.experiment.finished import read_run
-from gazereg.experiment.records import with_added_keys
+from gazereg.experiment.records import as_trained, with_added_keys
 from gazereg.report.compare import compare_markdown, comparison
 from gazereg.runtime.config import to_dict
 from gazereg.runtime.errors import UsageError
@@ -26,13 +26,15 @@ def compare_runs(run_a: str | Path, run_b: str | Path) -> dict[str, Any]:
     `read_run`. UsageError, one line, for a folder that is not a finished experiment or its archive, and for
     two runs that share no evaluated episode. A key one run's saved config has and the other's lacks (added
     to the configuration after the older run was made) takes its default in the older one, the behaviour it
-    had then (`with_added_keys`), so "What differs" names only the settings that really differ."""
+    had then (`with_added_keys`), and a precision saved as "auto" is the one its runs recorded training in
+    (`records.as_trained`), so "What differs" names only the settings that really differ."""
     a, b = read_run(run_a), read_run(run_b)
+    saved_a, saved_b = as_trained(a.config, run_a), as_trained(b.config, run_b)
     default = to_dict(ExperimentConfig())
     try:
         return comparison(
             (str(run_a), str(run_b)),
-            (with_added_keys(a.config, default, b.config), with_added_keys(b.config, default, a.config)),
+            (with_added_keys(saved_a, default, saved_b), with_added_keys(saved_b, default, saved_a)),
             (a.episodes(), b.episodes()),
             (a.report, b.report),
         )

@@ -1,6 +1,7 @@
 """What an experiment writes about itself: its saved configuration, read back to resume, and the report's spec.
 
 check_same_config(as_saved_now(saved, folder, cfg), cfg, ...)   # folder's config.json against cfg
+as_trained(saved, folder)     # "auto" precision as the folder's runs recorded training in
 report_spec(cfg, "quick")     # what report.md says the experiment ran
 """
 
@@ -32,19 +33,31 @@ def with_added_keys(saved: dict[str, Any], default: dict[str, Any], new: dict[st
     return out
 
 
+def as_trained(saved: dict[str, Any], folder: str | Path) -> dict[str, Any]:
+    """The experiment `folder`'s saved config.json (`saved`) with a training precision saved as "auto" replaced
+    by the one every run of the folder recorded training in (`finished.recorded_precision`): "auto" is bf16 on
+    a CPU with native bf16 and float32 elsewhere, so what a run trained in is the record, not the flag. Kept
+    "auto" when the folder records no single precision."""
+    train = saved.get("train")
+    if not (isinstance(train, dict) and train.get("mixed_precision") == "auto"):
+        return saved
+    recorded = recorded_precision(folder)
+    return saved if recorded is None else {**saved, "train": {**train, "mixed_precision": recorded}}
+
+
 def as_saved_now(saved: dict[str, Any], folder: str | Path, cfg: ExperimentConfig) -> dict[str, Any]:
     """The experiment `folder`'s saved config.json (`saved`) as `cfg` would save the same experiment: keys
     added since completed (`with_added_keys`), and a training precision saved as "auto" counted as the one
-    every run of the folder recorded training in (`finished.recorded_precision`) when `cfg` names that
-    precision. Pinning a preset's precision (a study run in sittings on machines whose "auto" differs) keeps
-    the sittings that trained in that precision under "auto" its own; one that trained in another, or did not
-    record it, still differs."""
+    every run of the folder recorded training in (`as_trained`) when `cfg` names that precision. Pinning a
+    preset's precision (a study run in sittings on machines whose "auto" differs) keeps the sittings that
+    trained in that precision under "auto" its own; one that trained in another, or did not record it, still
+    differs."""
     out = with_added_keys(saved, to_dict(ExperimentConfig()), to_dict(cfg))
-    pinned, train = cfg.train.mixed_precision, out.get("train")
-    auto = isinstance(train, dict) and train.get("mixed_precision") == "auto"
-    if auto and pinned != "auto" and recorded_precision(folder) == pinned:
-        out["train"] = {**train, "mixed_precision": pinned}
-    return out
+    pinned = cfg.train.mixed_precision
+    if pinned == "auto":
+        return out
+    trained = as_trained(out, folder)
+    return trained if trained.get("train", {}).get("mixed_precision") == pinned else out
 
 
 def report_spec(cfg: ExperimentConfig, preset: str) -> ReportSpec:
