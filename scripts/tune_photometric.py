@@ -18,8 +18,9 @@ Protocol (fixed on 2026-11-27, before any candidate ran):
 - Choice: the most validation successes pooled over the three conditions, ties to the earlier (weaker)
   candidate. The chosen flags then go into every arm's recipe (baseline, gaze, glc, uniform) of the
   LIBERO-Spatial runs; the gaze term is not retuned here.
-Each finished candidate `runs/tune-photometric/<name>` is archived as docs/records/tune-photometric/<name>
-(`gazereg archive`, so its row recomputes from its episodes) and recorded in
+The later candidates copy the first's demonstrations (`--data-from`, when its folder is here; the same
+demonstrations either way). Each finished candidate `runs/tune-photometric/<name>` is archived as
+docs/records/tune-photometric/<name> (`gazereg archive`, so its row recomputes from its episodes) and recorded in
 docs/tuning/photometric/<name>.json (its command, wall time and validation successes per condition, task and
 training seed); docs/tuning/photometric.md, the table of every candidate, is read from the archives.
 """
@@ -90,11 +91,21 @@ def finished(cand: Candidate) -> FinishedRun | None:
     return candidate_archive(command(cand), archive_path(cand.name))
 
 
+def data_from(cand: Candidate) -> list[str]:
+    """`--data-from` the first candidate's folder when it has its demonstrations: the candidates differ only
+    in the training recipe, so they train on the same demonstrations, copied instead of collected again
+    (`gazereg.experiment.reuse`)."""
+    first = ROOT / RUNS / CANDIDATES[0].name
+    if cand != CANDIDATES[0] and (first / "stages" / "demos.json").exists():
+        return ["--data-from", f"{RUNS}/{CANDIDATES[0].name}"]
+    return []
+
+
 def run_candidate(cand: Candidate) -> Path:
     """Run (or resume) `cand`'s experiment in runs/tune-photometric/<name>, archive it and write its record
     from the archive; returns the record's path."""
     t0 = time.time()
-    run_experiment(command(cand), ROOT)
+    run_experiment([*command(cand), *data_from(cand)], ROOT)
     run = archived_run(command(cand), ROOT, archive_path(cand.name))
     record = {"archive": f"docs/records/tune-photometric/{cand.name}"}
     record |= candidate_record(run, cand.name, cand.change, list(cand.overrides), command(cand))

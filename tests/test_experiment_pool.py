@@ -7,6 +7,9 @@ import shutil
 import pytest
 
 from gazereg import cli
+from gazereg.experiment.reuse import check_source
+from gazereg.experiment.runner import Experiment
+from gazereg.experiment.tuning import built_config
 
 pytestmark = pytest.mark.sim
 
@@ -32,9 +35,14 @@ def test_pooled_folders_report_what_one_run_of_every_seed_and_arm_reports(tmp_pa
         record = json.loads((tmp_path / folder / "stages" / f"{stage}.json").read_text())
         assert (record.get("copied_from") == str(tmp_path / "s0")) == copied, (folder, stage)
         assert (record["seconds"] == 0.0) == copied, (folder, stage)
-    capsys.readouterr()  # refused, one line: another configuration
-    assert _experiment(tmp_path / "p", [2], more=["--train.steps", "13", *s0]) == 2
-    assert "train.steps: 12 -> 13" in capsys.readouterr().err
+    capsys.readouterr()  # refused, one line: other demonstrations
+    assert _experiment(tmp_path / "p", [2], more=["--heldout-per-task", "2", *s0]) == 2
+    assert "heldout_per_task: 1 -> 2" in capsys.readouterr().err
+    recipe = ("gazereg", "experiment", *SMALL, "--arms", "baseline", "gaze", "--train.steps", "13")
+    recipe_cfg = built_config((*recipe, "--out", str(tmp_path / "r")))
+    # another training recipe: the same demonstrations and priors, so both stages are copied
+    records, missing = check_source(Experiment(recipe_cfg, "smoke"), tmp_path / "s0")
+    assert set(records) == {"demos", "priors"} and missing == []
     assert (
         _experiment(tmp_path / "s0", [0], more=["--data-from", str(tmp_path / "s1")]) == 0
     )  # nothing copied

@@ -69,6 +69,15 @@ def test_the_candidates_differ_only_by_the_jitter_and_validate_on_sampled_placem
         }
 
 
+def test_the_later_candidates_copy_the_first_ones_demonstrations_when_it_has_them(tune, tmp_path):
+    p0, p25 = candidate(tune, "p0"), candidate(tune, "p0.25")
+    assert tune.data_from(p0) == tune.data_from(p25) == []
+    stages = tmp_path / "runs" / "tune-photometric" / "p0" / "stages"
+    stages.mkdir(parents=True)
+    (stages / "demos.json").write_text("{}")
+    assert tune.data_from(p0) == [] and tune.data_from(p25) == ["--data-from", "runs/tune-photometric/p0"]
+
+
 def test_the_choice_pools_the_conditions_ties_to_the_weaker(tune):
     fake_archive(tune, "p0", {"clean": 60, "dim:0.7": 10, "gaussian_noise:0.5": 30})
     fake_archive(tune, "p0.25", {"clean": 55, "dim:0.7": 30, "gaussian_noise:0.5": 30})

@@ -7,8 +7,10 @@ run one seed per sitting, and arms added later, pooled with `gazereg pool`:
     gazereg experiment --preset paper --train-seeds 1 --out runs/paper-s1 --data-from runs/paper-s0
     gazereg experiment --preset paper --arms uniform --out runs/paper-uniform --data-from runs/paper-s0
 
-The source must be the same experiment but for its training seeds and arms (as `gazereg pool` asks). When it
-lacks a prior (here `uniform`), the priors stage runs in the new folder on the copied demonstrations. The
+The source must be the same experiment but for its training seeds, arms and what the data stages do not read
+(`DATA_FREE`: the training recipe, so the candidates of a tuning share their demonstrations; `gazereg pool`
+still asks for the same recipe). When it lacks a prior (here `uniform`), the priors stage runs in the new
+folder on the copied demonstrations. The
 copied stages' records name the source and count 0 s, so a pooled report's wall time counts the work once.
 """
 
@@ -31,6 +33,8 @@ from gazereg.runtime.io import atomic_dir, atomic_write_json
 log = logging.getLogger(__name__)
 
 DATA_STAGES = ("demos", "priors")
+DATA_FREE = ("train", "convergence_points", "convergence_episodes", "threshold", "figure_frames")
+"""the keys neither data stage reads (the training recipe, the report's): a source may differ in them"""
 
 
 def data_dirs(cfg: ExperimentConfig) -> list[Path]:
@@ -53,7 +57,7 @@ def take_data_from(argv: Sequence[str]) -> tuple[Path | None, list[str]]:
 def check_source(exp: Experiment, source: Path) -> tuple[dict[str, dict], list[str]]:
     """(the source's finished demos and priors stage records, what of the priors `exp`'s arms need it lacks);
     refused (UsageError) unless it is the same experiment with its demos stage finished."""
-    src = exp.sibling(source, "--data-from")
+    src = exp.sibling(source, "--data-from", DATA_FREE)
     records = {stage: r for stage in DATA_STAGES if (r := src.done(stage)) is not None}
     if "demos" not in records:
         raise UsageError(f"--data-from: {source} has not finished its demos stage")

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from multiprocessing import get_context
@@ -111,32 +112,35 @@ class Experiment:
         self,
         advice: str = "its finished stages would be reused. Choose another --out, or delete the folder to "
         "start over.",
+        free: Sequence[str] = (),
     ) -> None:
         """Refuse to continue a run folder whose finished stages were made with another configuration: they
         would be skipped and reported as this configuration's results. A key added to the configuration
         since the folder was made counts as its default, an "auto" precision as the one its runs recorded
-        (`records.as_saved_now`)."""
+        (`records.as_saved_now`); the dotted keys `free` (and the execution keys) may differ."""
         saved = read_saved_config(self.out)
         if saved is None:
             return
         check_same_config(
             as_saved_now(saved, self.out, self.cfg),
             self.cfg,
-            ("out", *EXECUTION_KEYS),
+            ("out", *EXECUTION_KEYS, *free),
             self.out,
             advice,
         )
 
-    def sibling(self, folder: Path, flag: str) -> Experiment:
+    def sibling(self, folder: Path, flag: str, free: Sequence[str] = ()) -> Experiment:
         """The experiment in `folder`, refused (UsageError naming `flag` and the differing keys) unless it ran
-        this configuration but for its training seeds and arms (and execution keys)."""
+        this configuration but for its training seeds and arms, the execution keys and the dotted keys `free`
+        (the returned experiment's configuration is this one's in those keys)."""
         saved = read_saved_config(folder)
         if saved is None:
             raise UsageError(f"{flag}: {folder} holds no experiment (no {CONFIG_FILE})")
         seeds, arms = tuple(int(s) for s in saved.get("train_seeds", ())), tuple(saved.get("arms", ()))
         other = Experiment(replace(self.cfg, out=folder, train_seeds=seeds, arms=arms), self.preset)
+        also = "".join(f", {k}" for k in free)
         other.check_resumable(
-            f"{flag} takes folders of the same experiment with other training seeds or arms."
+            f"{flag} takes folders of the same experiment with other training seeds, arms{also}.", free
         )
         return other
 
