@@ -35,7 +35,12 @@ _SIZES = {"one": _Size, "two": lambda: _Size(width=2)}
 
 
 def test_parse_named_returns_the_preset_it_chose_with_the_config():
-    assert parse_named(_SIZES, ["--width", "5"], prog="t") == ("one", _Size(width=5))  # the registry's first
+    with pytest.raises(UsageError, match="--preset NAME is required"):  # the registry's order never chooses
+        parse_named(_SIZES, ["--width", "5"], prog="t")
+    assert parse_named({"one": _Size}, ["--width", "5"], prog="t") == (
+        "one",
+        _Size(width=5),
+    )  # its own default
     assert parse_named(_SIZES, [], prog="t", default="two") == ("two", _Size(width=2))
     assert parse_named(_SIZES, ["--preset", "two"], prog="t", required=True) == ("two", _Size(width=2))
     with pytest.raises(UsageError, match="--preset NAME is required"):

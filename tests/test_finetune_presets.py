@@ -151,4 +151,4 @@ def test_the_demo_is_gazereg_experiments_default(monkeypatch):
     with pytest.raises(Built) as built:
         cli.main([])
     assert to_dict(built.value.args[0]) == to_dict(PRESETS["demo"]())
-    assert KINDS[0].default_name() == "demo"  # `gazereg presets` stars it
+    assert KINDS[0].default == "demo"  # `gazereg presets` stars it

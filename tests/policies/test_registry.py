@@ -57,7 +57,7 @@ def test_policy_type_on_the_command_line_picks_the_registered_config(toy_policy)
     assert same.policy == dataclasses.replace(smoke().policy, depth=3)  # the preset's VLA config is kept
     assert to_dict(same)["policy"]["type"] == "vla" and "policy_type" not in to_dict(same)
     with pytest.raises(UsageError, match="unknown policy type 'nope'"):
-        parse(PRESETS, ["--policy.type", "nope"], prog="t")
+        parse(PRESETS, ["--policy.type", "nope"], prog="t", default="ci")
 
 
 def test_make_policy_builds_the_configs_registered_type(toy_policy, reach_store):

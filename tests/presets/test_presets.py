@@ -114,6 +114,16 @@ def test_a_name_means_one_thing_across_kinds():
     assert {kind for kind, _ in rows} == {kind for kind, _ in RENAMED.values()} | {"pretraining"}
 
 
+def test_every_kind_a_command_takes_by_preset_names_its_default_and_no_other_kind_does():
+    """A command's default is named (never the registry's order): each kind taken by `--preset` names one of
+    its own presets; a kind no command takes by `--preset` (sizes) names none."""
+    for kind in KINDS:
+        if "--preset" in kind.used_by:
+            assert kind.default in kind.presets(), kind.kind
+        else:
+            assert kind.default is None, kind.kind
+
+
 def test_gazereg_presets_lists_every_preset_with_one_line(capsys):
     assert cli.main(["presets"]) == 0
     out = capsys.readouterr().out.splitlines()

@@ -55,6 +55,7 @@ from gazereg.data.store import EpisodeStore
 from gazereg.envs.base import make_collector
 from gazereg.envs.cache import EnvCache
 from gazereg.envs.collect_config import (
+    DEFAULT_PRESET,
     FINGERPRINT_FIELDS,
     PRESETS,
     CollectConfig,
@@ -332,7 +333,13 @@ def _split_lists(argv: Sequence[str], options: Sequence[str] = ("--tasks", "--ca
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    cfg = parse(PRESETS, _split_lists(argv), prog="gazereg collect", description=__doc__.split("\n\n")[0])
+    cfg = parse(
+        PRESETS,
+        _split_lists(argv),
+        prog="gazereg collect",
+        description=__doc__.split("\n\n")[0],
+        default=DEFAULT_PRESET,
+    )
     report = collect(cfg)
     d = report.to_dict()
     print(

@@ -137,7 +137,9 @@ def demos_10x50() -> CollectConfig:
 
 
 PRESETS = {"demos-3x30": demos_3x30, "demos-2x2": demos_2x2, "demos-10x50": demos_10x50}
-"""the collection budgets, `gazereg collect --preset NAME` (the first is the default; `gazereg presets`)"""
+"""the collection budgets, `gazereg collect --preset NAME` (`gazereg presets`)"""
+DEFAULT_PRESET = "demos-3x30"
+"""`gazereg collect`'s budget without `--preset`"""
 
 
 def fingerprint(cfg: CollectConfig) -> str:

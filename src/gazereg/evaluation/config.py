@@ -187,7 +187,7 @@ def robustness_50() -> EvalConfig:
 
 
 def presets() -> dict[str, Callable[[], EvalConfig]]:
-    """The evaluation budgets, `gazereg eval --preset NAME` (the first is the default; `gazereg presets`)."""
+    """The evaluation budgets, `gazereg eval --preset NAME` (`DEFAULT_PRESET` without it; `gazereg presets`)."""
     return {
         "clean-10": clean_10,
         "clean-dim-2": clean_dim_2,
@@ -199,6 +199,10 @@ def presets() -> dict[str, Callable[[], EvalConfig]]:
         "aloha-50": aloha_50,
         "robustness-50": robustness_50,
     }
+
+
+DEFAULT_PRESET = "clean-10"
+"""`gazereg eval`'s budget without `--preset`"""
 
 
 def check_tasks(env: str, tasks: Sequence[str], flag: str = "--tasks") -> None:

@@ -42,7 +42,13 @@ from gazereg.envs.base import env_class, simulator
 from gazereg.envs.cache import WORKER_ENVS, EnvCache
 from gazereg.envs.interface import Env
 from gazereg.envs.perturbations import parse_perturbation
-from gazereg.evaluation.config import EvalConfig, check_tasks, parse_checkpoints, presets
+from gazereg.evaluation.config import (
+    DEFAULT_PRESET,
+    EvalConfig,
+    check_tasks,
+    parse_checkpoints,
+    presets,
+)
 from gazereg.evaluation.summary import format_table, summarize
 from gazereg.patches import grid_to_image
 from gazereg.policies import load_policy
@@ -332,7 +338,11 @@ def evaluate(cfg: EvalConfig, progress: bool = True) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     cfg = parse(
-        presets(), sys.argv[1:] if argv is None else argv, prog="gazereg eval", description=__doc__ or ""
+        presets(),
+        sys.argv[1:] if argv is None else argv,
+        prog="gazereg eval",
+        description=__doc__ or "",
+        default=DEFAULT_PRESET,
     )
     info = evaluate(cfg)
     print(format_table(info["summary"]))

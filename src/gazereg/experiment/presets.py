@@ -34,15 +34,12 @@ Factory = Callable[[], Any]
 @dataclass(frozen=True)
 class PresetKind:
     """One kind of preset: its name, where it is used, its presets by name, and the name its command takes
-    without `--preset` (`default`; None: the first)."""
+    without `--preset` (`default`; None: no command takes the kind by `--preset`)."""
 
     kind: str
     used_by: str
     presets: Callable[[], Mapping[str, Factory]]
     default: str | None = None
-
-    def default_name(self) -> str:
-        return self.default or next(iter(self.presets()))
 
 
 KINDS: tuple[PresetKind, ...] = (
@@ -52,9 +49,16 @@ KINDS: tuple[PresetKind, ...] = (
         lambda: experiment_config.PRESETS,
         experiment_config.DEFAULT_PRESET,
     ),
-    PresetKind("training recipe", "gazereg train --preset", lambda: train_config.PRESETS),
-    PresetKind("evaluation budget", "gazereg eval --preset", eval_config.presets),
-    PresetKind("collection budget", "gazereg collect --preset", lambda: collect_config.PRESETS),
+    PresetKind(
+        "training recipe", "gazereg train --preset", lambda: train_config.PRESETS, train_config.DEFAULT_PRESET
+    ),
+    PresetKind("evaluation budget", "gazereg eval --preset", eval_config.presets, eval_config.DEFAULT_PRESET),
+    PresetKind(
+        "collection budget",
+        "gazereg collect --preset",
+        lambda: collect_config.PRESETS,
+        collect_config.DEFAULT_PRESET,
+    ),
     PresetKind(
         "policy size", "gazereg.policies.vla.configuration_vla.PRESETS", lambda: configuration_vla.PRESETS
     ),
@@ -63,8 +67,15 @@ KINDS: tuple[PresetKind, ...] = (
         "--glc.config, config= of the glc gaze source, gazereg glc eval --config",
         lambda: glc_source.CONFIGS,
     ),
-    PresetKind("GLC training recipe", "gazereg glc train --preset", glc_cli.train_presets),
-    PresetKind("pretraining", "gazereg pretrain --preset", lambda: pretrain_config.PRESETS),
+    PresetKind(
+        "GLC training recipe", "gazereg glc train --preset", glc_cli.train_presets, glc_cli.DEFAULT_PRESET
+    ),
+    PresetKind(
+        "pretraining",
+        "gazereg pretrain --preset",
+        lambda: pretrain_config.PRESETS,
+        pretrain_config.DEFAULT_PRESET,
+    ),
 )
 
 
@@ -96,7 +107,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         rows = catalogue((kind,))
         name_width = max(len(name) for _, name, _ in rows) + 1
         for _, name, line in rows:
-            mark = "*" if name == kind.default_name() and "--preset" in kind.used_by else ""
+            mark = "*" if name == kind.default else ""
             print(f"  {name + mark:<{name_width}}  {line}")
     print("* the command's default preset")
     return 0

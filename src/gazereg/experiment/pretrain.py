@@ -48,6 +48,7 @@ from gazereg.evaluation.config import EvalConfig
 from gazereg.evaluation.rollout import evaluate
 from gazereg.experiment.demos import collection_result
 from gazereg.experiment.pretrain_config import (
+    DEFAULT_PRESET,
     EXECUTION_KEYS,
     PRESETS,
     PretrainConfig,
@@ -308,7 +309,9 @@ def _tensor_sizes(path: Path) -> dict[str, int]:
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     args = list(sys.argv[1:] if argv is None else argv)
-    preset, cfg = parse_named(PRESETS, args, prog="gazereg pretrain", description=__doc__ or "")
+    preset, cfg = parse_named(
+        PRESETS, args, prog="gazereg pretrain", description=__doc__ or "", default=DEFAULT_PRESET
+    )
     try:
         results = Pretraining(cfg, preset, args).run()
     except Paused as e:

@@ -252,4 +252,6 @@ def toy() -> PretrainConfig:
 
 
 PRESETS = {"ml45": ml45, "ml45_continued": ml45_continued, "toy": toy}
-"""`gazereg pretrain --preset NAME`; the first is the default"""
+"""`gazereg pretrain --preset NAME`"""
+DEFAULT_PRESET = "ml45"
+"""`gazereg pretrain`'s preset without `--preset`"""

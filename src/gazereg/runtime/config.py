@@ -1,7 +1,7 @@
 """Named presets with dotted command-line overrides.
 
 Every command has a frozen dataclass config and a dict of named presets (functions returning a config).
-`parse` picks `--preset NAME` (default: the first preset) and applies `--a.b=value` overrides with tyro.
+`parse` picks `--preset NAME` (default: the command's named default) and applies `--a.b=value` overrides with tyro.
 A field marked with `Choice` metadata holds one of several registered dataclasses: `--a.b.type NAME`
 (LeRobot-style) swaps in the named class (its defaults) before the overrides of its fields apply, and
 `to_dict` records the name as "type". Resolved configs are stored as JSON beside what they produced.
@@ -121,13 +121,15 @@ def parse_named(
     required: bool = False,
 ) -> tuple[str, T]:
     """(the preset's name, the config): preset defaults, then dotted overrides from argv. Without `--preset`
-    the preset is `default` when given, else the registry's first; `required` refuses (UsageError) an argv
-    without `--preset`."""
+    the preset is `default` (a registry of one preset is its own default; the order of several never chooses);
+    `required`, or several presets and no `default`, refuses (UsageError) an argv without `--preset`."""
     import tyro
 
     if not presets:
         raise ValueError("no presets defined")
-    name, rest = split_preset(argv, default=None if required else default or next(iter(presets)))
+    if default is None and len(presets) == 1:
+        default = next(iter(presets))
+    name, rest = split_preset(argv, default=None if required else default)
     if name not in presets:
         raise UsageError(f"unknown preset {name!r} for {prog}; choose one of {sorted(presets)}")
     base, rest = choose(presets[name](), rest)

@@ -327,7 +327,9 @@ def gpu() -> TrainConfig:
 
 
 PRESETS = {"ci": ci, "cpu": cpu, "tuned": tuned, "gpu": gpu}
-"""the training recipes, `gazereg train --preset NAME` (the first is the default)"""
+"""the training recipes, `gazereg train --preset NAME`"""
+DEFAULT_PRESET = "ci"
+"""`gazereg train`'s recipe without `--preset`"""
 
 smoke, quick, paper = (
     ci,

@@ -50,13 +50,19 @@ def finetune_official() -> GLCTrainCommand:
 
 
 def train_presets() -> dict[str, Callable[[], GLCTrainCommand]]:
-    """The GLC training recipes, `gazereg glc train --preset NAME`: `scratch-small` (the default) and
-    `finetune-official`."""
+    """The GLC training recipes, `gazereg glc train --preset NAME`: `scratch-small` (`DEFAULT_PRESET`, the
+    default) and `finetune-official`."""
     return {"scratch-small": scratch_small, "finetune-official": finetune_official}
 
 
+DEFAULT_PRESET = "scratch-small"
+"""`gazereg glc train`'s recipe without `--preset`"""
+
+
 def main(argv: list[str]) -> int:
-    cfg = parse(train_presets(), argv, prog="gazereg glc train", description=__doc__ or "").to_config()
+    cfg = parse(
+        train_presets(), argv, prog="gazereg glc train", description=__doc__ or "", default=DEFAULT_PRESET
+    ).to_config()
     result = train_glc_on_store(cfg)
     print(
         f"GLC ({cfg.config}) trained to step {result.steps} in {result.train_seconds:.0f} s; "

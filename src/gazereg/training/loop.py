@@ -54,7 +54,7 @@ from gazereg.policies import Policy
 from gazereg.runtime.config import parse, to_dict
 from gazereg.runtime.progress import Progress
 from gazereg.training.checkpoint import prune_checkpoints, save_checkpoint
-from gazereg.training.config import PRESETS, TrainConfig
+from gazereg.training.config import DEFAULT_PRESET, PRESETS, TrainConfig
 from gazereg.training.location import HEAD_NAME, FeatureCapture, LocationHead, average_gradients
 from gazereg.training.photometric import photometric
 from gazereg.training.schedule import step_generator
@@ -373,7 +373,11 @@ def finish(run: Run, record: dict[str, Any], last_ckpt: Path | None) -> dict[str
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     cfg = parse(
-        PRESETS, sys.argv[1:] if argv is None else argv, prog="gazereg train", description=__doc__ or ""
+        PRESETS,
+        sys.argv[1:] if argv is None else argv,
+        prog="gazereg train",
+        description=__doc__ or "",
+        default=DEFAULT_PRESET,
     )
     result = train(cfg)
     if result["main"] and result["metrics"]:
