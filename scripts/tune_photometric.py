@@ -13,6 +13,9 @@ Protocol (fixed on 2026-11-27, before any candidate ran):
   (`--eval.seed-start 10000 --eval.episodes 10`): placements LIBERO's initializer samples, none of the fixed
   initial states (`gazereg.envs.libero.setup.SAMPLED_FROM`); clean on all 10, dim light (`dim:0.7`) and sensor
   noise (`gaussian_noise:0.5`) on the first 5 (`--eval.robustness-episodes 5`): 200 episodes a candidate.
+  Amended on 2026-12-05, before any candidate had a result: the held-out demonstrations (attention alignment
+  and held-out loss only, not the score) are the `libero` preset's own (`--heldout-seed-start`), because the
+  expert solved none of its tries on the sampled placements of four tasks and the first attempt stopped there.
 - Candidates: `p0` (the preset, no augmentation), `p0.25` and `p0.5` (brightness, contrast and saturation
   jitter of that strength: each factor drawn per frame from [1 - s, 1 + s]; `gazereg.training.photometric`).
 - Choice: the most validation successes pooled over the three conditions, ties to the earlier (weaker)
@@ -34,6 +37,8 @@ import time
 from pathlib import Path
 
 from gazereg.envs.libero.setup import SAMPLED_FROM
+from gazereg.experiment.config import PRESETS
+from gazereg.experiment.demos import HELDOUT_OFFSET
 from gazereg.experiment.finished import FinishedRun
 from gazereg.experiment.tuning import (
     Candidate,
@@ -58,9 +63,12 @@ DOCS = ROOT / "docs" / "tuning"
 RECORDS = ROOT / "docs" / "records" / "tune-photometric"
 RUNS = "runs/tune-photometric"
 CONDITIONS = ("clean", "dim:0.7", "gaussian_noise:0.5")
+HELDOUT_FROM = PRESETS["libero"]().eval.seed_start + HELDOUT_OFFSET
+"""the `libero` preset's own held-out setups (fixed states the expert solves), not sampled placements"""
 BASE = [
     "--preset", "libero", "--arms", "baseline", "--threads-per-run", "2",
     "--eval.seed-start", str(SAMPLED_FROM), "--eval.episodes", "10", "--eval.robustness-episodes", "5",
+    "--heldout-seed-start", str(HELDOUT_FROM),
 ]  # fmt: skip
 
 

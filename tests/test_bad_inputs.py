@@ -86,6 +86,7 @@ BAD_INPUTS = [
     (["experiment", "--train-seeds"], 2, "--train-seeds is empty"),
     (["experiment", "--demos-per-task", "0"], 2, "--demos-per-task must be"),
     (["experiment", "--heldout-per-task", "0"], 2, "--heldout-per-task must be"),
+    (["experiment", "--heldout-seed-start", "-1"], 2, "--heldout-seed-start must be"),
     (["experiment", "--parallel", "0"], 2, "--parallel must be"),
     (["experiment", "--threads-per-run", "0"], 2, "--threads-per-run must be"),
     (["experiment", "--convergence-points", "0"], 2, "--convergence-points must be"),

@@ -9,6 +9,8 @@ from pathlib import Path
 import pytest
 
 from gazereg.envs.libero.setup import SAMPLED_FROM
+from gazereg.experiment.config import PRESETS
+from gazereg.experiment.demos import demo_collections
 from gazereg.experiment.tuning import built_config
 from gazereg.runtime.config import config_diff, to_dict
 from gazereg.runtime.errors import UsageError
@@ -67,6 +69,18 @@ def test_the_candidates_differ_only_by_the_jitter_and_validate_on_sampled_placem
         assert config_diff(configs["p0"], cfg, ignore=("out",)) == {
             f"train.photometric.{k}": v for k, v in jitter.items()
         }
+
+
+def test_the_candidates_hold_out_the_libero_presets_own_demonstrations_not_sampled_placements(tune):
+    """The held-out demonstrations (alignment only) come from the preset's fixed states, where the expert
+    succeeds, not from the validation range's sampled placements, where it solved none of four tasks."""
+    preset = PRESETS["libero"]()
+    want = demo_collections(preset, Path("p"))["heldout"].seed_base
+    assert want < SAMPLED_FROM
+    for cand in tune.CANDIDATES:
+        cfg = built_config(tuple(tune.command(cand)))
+        assert demo_collections(cfg, Path("p"))["heldout"].seed_base == want
+        assert demo_collections(cfg, Path("p"))["train"] == demo_collections(preset, Path("p"))["train"]
 
 
 def test_the_later_candidates_copy_the_first_ones_demonstrations_when_it_has_them(tune, tmp_path):

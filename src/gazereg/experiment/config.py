@@ -52,6 +52,9 @@ class ExperimentConfig(Validated):
     `Collector.default_max_steps`)"""
     heldout_per_task: int = 3
     """expert episodes per task on unseen setups, for attention-gaze alignment only"""
+    heldout_seed_start: int | None = None
+    """the held-out episodes' first setup seed (None: the evaluation's first + `demos.HELDOUT_OFFSET`); a run
+    validated on setups the expert cannot solve takes its held-out episodes where it can"""
     collect_workers: int = 2
     gaze: VisuomotorParams = field(default_factory=VisuomotorParams)
     """the gaze arm's source, simulated eye-hand coordination on the demonstrations' simulator facts: its
@@ -122,6 +125,8 @@ class ExperimentConfig(Validated):
             require_number(side, prefix + "prior_size", 1, integer=True)
         require_number(self.threshold, prefix + "threshold", 0, 1, open_low=True, open_high=True)
         require_number(self.demo_max_failures, prefix + "demo_max_failures", 0, integer=True)
+        if self.heldout_seed_start is not None:
+            require_number(self.heldout_seed_start, prefix + "heldout_seed_start", 0, integer=True)
         require_number(self.demo_max_steps, prefix + "demo_max_steps", 0, integer=True)
         if not self.camera:
             raise UsageError(f"{option(prefix + 'camera')} is empty: name the camera")

@@ -54,7 +54,10 @@ def demo_collections(cfg: ExperimentConfig, out: Path) -> dict[str, CollectConfi
             **common,
         ),
         "heldout": CollectConfig(
-            out=stores["heldout"], episodes=cfg.heldout_per_task, seed_base=start + HELDOUT_OFFSET, **common
+            out=stores["heldout"],
+            episodes=cfg.heldout_per_task,
+            seed_base=start + HELDOUT_OFFSET if cfg.heldout_seed_start is None else cfg.heldout_seed_start,
+            **common,
         ),
     }
     if trains_glc(cfg) and not cfg.glc_folds:
