@@ -39,7 +39,7 @@ from pathlib import Path
 from gazereg.envs.libero.setup import SAMPLED_FROM
 from gazereg.experiment.config import PRESETS
 from gazereg.experiment.demos import HELDOUT_OFFSET
-from gazereg.experiment.finished import FinishedRun
+from gazereg.experiment.finished import FinishedRun, stage_marker
 from gazereg.experiment.tuning import (
     Candidate,
     archived_run,
@@ -104,7 +104,7 @@ def data_from(cand: Candidate) -> list[str]:
     in the training recipe, so they train on the same demonstrations, copied instead of collected again
     (`gazereg.experiment.reuse`)."""
     first = ROOT / RUNS / CANDIDATES[0].name
-    if cand != CANDIDATES[0] and (first / "stages" / "demos.json").exists():
+    if cand != CANDIDATES[0] and stage_marker(first, "demos").exists():
         return ["--data-from", f"{RUNS}/{CANDIDATES[0].name}"]
     return []
 

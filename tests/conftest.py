@@ -68,14 +68,25 @@ def script():
     return _load_script("scripts/update_results.py")
 
 
+def _forget_accelerate() -> None:
+    """Forget accelerate's process-wide state, as a new `gazereg train` process starts without it."""
+    from accelerate.state import AcceleratorState, GradientState
+
+    AcceleratorState._reset_state(reset_partial_state=True)
+    GradientState._reset_state()
+
+
+@pytest.fixture
+def reset_accelerate():
+    """`_forget_accelerate`, for a test that trains twice in one process as two processes would."""
+    return _forget_accelerate
+
+
 @pytest.fixture(autouse=True)
 def _fresh_accelerate():
     """Each test starts with accelerate's process-wide state forgotten, as a new `gazereg train` process does:
     accelerate keeps one mixed precision per process and refuses an Accelerator with another, so a test that
     trained under "auto" (bf16 on a CPU with native bf16) must not decide the precision of a later test in the
     same worker (tests that pin float32 failed after one on an AMX CPU)."""
-    from accelerate.state import AcceleratorState, GradientState
-
-    AcceleratorState._reset_state(reset_partial_state=True)
-    GradientState._reset_state()
+    _forget_accelerate()
     yield

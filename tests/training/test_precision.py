@@ -8,7 +8,6 @@ from pathlib import Path
 
 import pytest
 import torch
-from accelerate.state import AcceleratorState, GradientState
 from safetensors.torch import load_file
 
 from gazereg.runtime import hardware
@@ -35,18 +34,17 @@ def weights(run_dir, step, name="model.safetensors"):
 OPT = "training_state/optimizer.safetensors"
 
 
-def reset_accelerate() -> None:
-    """Forget accelerate's process-wide state, as a new `gazereg train` process starts without it."""
-    AcceleratorState._reset_state(reset_partial_state=True)
-    GradientState._reset_state()
-
-
-def train_fresh(c):
+@pytest.fixture
+def train_fresh(reset_accelerate):
     """`train` as in its own process: accelerate keeps one mixed precision per process and refuses an
     Accelerator with another one, and tests here train in both (each test starts with a clean state:
     tests/conftest.py's `_fresh_accelerate`)."""
-    reset_accelerate()
-    return train(c)
+
+    def run(c):
+        reset_accelerate()
+        return train(c)
+
+    return run
 
 
 # ----- 6. resolve_precision ---------------------------------------------------------------------------------
@@ -105,7 +103,7 @@ def test_cpu_flags_and_native_bf16_agree_with_proc_cpuinfo():
 # ----- 8. the resolved choice is recorded and kept on resume ------------------------------------------------
 @pytest.mark.parametrize("forced", [None, "other"])
 def test_config_json_records_the_resolved_precision_and_resume_keeps_it(
-    tiny_store, tmp_path, monkeypatch, forced
+    tiny_store, tmp_path, monkeypatch, forced, train_fresh
 ):
     if forced is not None:  # the choice this machine would not make, so that both branches run anywhere
         real = hardware.native_bf16("cpu")
@@ -136,7 +134,7 @@ def test_config_json_records_the_resolved_precision_and_resume_keeps_it(
 
 
 # ----- 9. the bf16 path is deterministic ----------------------------------------------------------------------
-def test_two_bf16_runs_give_bit_identical_weights_and_differ_from_float32(tiny_store, tmp_path):
+def test_two_bf16_runs_give_bit_identical_weights_and_differ_from_float32(tiny_store, tmp_path, train_fresh):
     kw = dict(steps=4, save_every=4, eval_every=4, log_every=1, gaze=GazeConfig(prior="square", weight=0.5))
     for name, precision in (("a", "bf16"), ("b", "bf16"), ("f32", "no")):
         train_fresh(cfg(tiny_store, tmp_path / name, mixed_precision=precision, **kw))

@@ -10,8 +10,8 @@ run one seed per sitting, and arms added later, pooled with `gazereg pool`:
 The source must be the same experiment but for its training seeds, arms and what the data stages do not read
 (`DATA_FREE`: the training recipe, so the candidates of a tuning share their demonstrations; `gazereg pool`
 still asks for the same recipe). When it lacks a prior (here `uniform`), the priors stage runs in the new
-folder on the copied demonstrations. The
-copied stages' records name the source and count 0 s, so a pooled report's wall time counts the work once.
+folder on the copied demonstrations. The copied stages' records name the source and count 0 s, so a pooled
+report's wall time counts the work once.
 """
 
 from __future__ import annotations

@@ -44,6 +44,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gazereg.experiment.config_finetune import GLC_ML45
+from gazereg.experiment.finished import stage_marker
 from gazereg.experiment.pool import main as pool_main
 from gazereg.experiment.tuning import archived_run, built_config, run_experiment
 from gazereg.runtime.errors import UsageError
@@ -200,7 +201,7 @@ def is_archived(sitting: Sitting, root: Path, records: Path = RECORDS) -> bool:
 def data_from(schedule: Schedule, sitting: Sitting, root: Path) -> list[str]:
     """`--data-from` the part's first sitting's folder when it is here with its demonstrations."""
     first = schedule.first(sitting.part)
-    if sitting != first and (root / first.folder / "stages" / "demos.json").exists():
+    if sitting != first and stage_marker(root / first.folder, "demos").exists():
         return ["--data-from", first.folder.as_posix()]
     return []
 
