@@ -6,8 +6,10 @@ the runs' precision, as before, for runs made before the record."""
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
+from matplotlib.image import imsave
 
 from gazereg.experiment.archive import archived_files
 from gazereg.experiment.finished import FinishedRun, read_run
@@ -122,7 +124,7 @@ def test_old_runs_without_a_record_keep_the_report_machines_key(tmp_path, report
 def test_the_finished_run_reader_the_archive_and_the_pool_carry_the_records(tmp_path):
     source = tmp_path / "exp"
     (source / "figures").mkdir(parents=True)
-    (source / "figures" / "attention.png").write_bytes(b"png")
+    imsave(source / "figures" / "attention.png", np.zeros((2, 2, 3)))  # the pool stacks the folders' figures
     record_numerics(source / "train" / "gaze_s0", "no", 0)
     for run in RUNS:
         (source / "train" / f"{run.arm}_s0" / "metrics.jsonl").parent.mkdir(parents=True, exist_ok=True)

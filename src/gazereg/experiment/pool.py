@@ -20,7 +20,6 @@ be the same (each folder collects and trains them from the same seeds, or copies
 
 from __future__ import annotations
 
-import shutil
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -30,6 +29,7 @@ from gazereg.experiment.finished import CONFIG_FILE, POOLED_RECORD, read_run
 from gazereg.experiment.records import report_spec
 from gazereg.experiment.runner import Experiment
 from gazereg.report.build import StageOutputs, build_report, write_report
+from gazereg.report.figures import stack_figures
 from gazereg.report.ids import RunId
 from gazereg.runtime.config import parse_named, save_config
 from gazereg.runtime.errors import UsageError
@@ -49,8 +49,9 @@ def source_outputs(cfg: ExperimentConfig, preset: str, source: Path) -> tuple[li
 
 def merge_outputs(sources: Sequence[Path], outputs: Sequence[StageOutputs], out: Path) -> StageOutputs:
     """The outputs of the pooled runs as one experiment's: records and per-run values together, the same
-    demonstrations and GLC (refused otherwise), the first folder's attention figure copied to `out`, the
-    latest date and the stage times summed."""
+    demonstrations and GLC (refused otherwise), one attention figure in `out` stacking the folders' that show
+    arms not shown above them (each folder's figure shows its own arms), the latest date and the stage times
+    summed."""
     first = outputs[0]
     glcs = [(source, o.glc) for source, o in zip(sources, outputs) if o.glc is not None]
     for source, o in zip(sources[1:], outputs[1:]):
@@ -62,8 +63,7 @@ def merge_outputs(sources: Sequence[Path], outputs: Sequence[StageOutputs], out:
         if _comparable(glc) != _comparable(glcs[0][1]):
             raise UsageError(f"--runs: {source}'s GLC differs from {glcs[0][0]}'s: not one experiment")
     figure = Path("figures") / "attention.png"
-    (out / figure).parent.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(sources[0] / first.attention_figure, out / figure)
+    stack_figures(attention_sources(sources, outputs), out / figure)
     times: dict[str, float] = {}
     for o in outputs:
         for stage, seconds in o.stage_times.items():
@@ -81,6 +81,19 @@ def merge_outputs(sources: Sequence[Path], outputs: Sequence[StageOutputs], out:
         stage_times=times,
         numerics={k: v for o in outputs for k, v in o.numerics.items()},
     )
+
+
+def attention_sources(sources: Sequence[Path], outputs: Sequence[StageOutputs]) -> list[Path]:
+    """The first folder's attention figure and those of the later folders, in order, that show an arm no
+    earlier one shows (a folder's figure shows each arm its align stage aligned, at its first training seed)."""
+    shown: set[str] = set()
+    figures = []
+    for source, o in zip(sources, outputs):
+        arms = {run.arm for run in o.alignment}
+        if not figures or arms - shown:
+            figures.append(source / o.attention_figure)
+            shown |= arms
+    return figures
 
 
 def _comparable(record: object) -> object:

@@ -137,3 +137,16 @@ def plot_attention(panels: list[dict[str, Any]], columns: list[str], path: Path)
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+def stack_figures(paths: list[Path], path: Path) -> Path:
+    """The PNG figures `paths` one above the other in `path` (narrower ones padded white on the right): one
+    attention figure of a pooled report from its folders', each showing its own arms."""
+    plt = _plt()
+    images = [plt.imread(p) for p in paths]  # (H, W, C) floats in [0, 1], C 3 or 4
+    images = [np.dstack([im, np.ones(im.shape[:2])]) if im.shape[2] == 3 else im for im in images]
+    width = max(im.shape[1] for im in images)
+    padded = [np.pad(im, ((0, 0), (0, width - im.shape[1]), (0, 0)), constant_values=1.0) for im in images]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    plt.imsave(path, np.concatenate(padded, axis=0))
+    return path
