@@ -135,11 +135,11 @@ def _pooled_archives_report_what_the_folders_do(tmp_path, folders, pooled, capsy
 
 
 def test_folders_with_other_demonstrations_or_another_glc_are_not_one_experiment(tmp_path):
+    from matplotlib.image import imsave
+
     from gazereg.experiment.pool import merge_outputs
     from gazereg.report.build import StageOutputs
     from gazereg.runtime.errors import UsageError
-
-    from matplotlib.image import imsave
 
     (tmp_path / "a" / "figures").mkdir(parents=True)
     imsave(tmp_path / "a" / "figures" / "attention.png", np.zeros((2, 2, 3)))
