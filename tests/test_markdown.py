@@ -194,6 +194,8 @@ def test_the_per_task_table_carries_each_tasks_instruction(report):
     metas = [{"task": "reach-v3", "instruction": "Reach the goal."}, {"task": "reach-v3"}]
     said = task_instructions(metas)
     assert said == {"reach-v3": "Reach the goal."}  # the first episode's
+    libero = {"task": "pick_up_the_bowl", "env_name": "libero_spatial/4", "instruction": "pick up the bowl"}
+    assert task_instructions([libero]) == {"libero_spatial/4": "pick up the bowl"}  # the evaluation's name
     report.setdefault("demos", {})["instructions"] = said
     lines = per_task_lines(report)
     assert lines[2].startswith("| task | instruction |")

@@ -60,6 +60,8 @@ def test_the_libero_smoke_experiment_runs_every_stage(tmp_path):
     for arm in report["success"].values():
         assert arm["clean"]["n"] == 2 * 2 and arm["dim:0.7"]["n"] == arm["gaussian_noise:0.5"]["n"] == 2 * 1
     assert set(report["demos"]["per_task"]) == set(cfg.tasks) and report["demos"]["wanted"] == 2
+    said = report["demos"]["instructions"]  # keyed as the evaluation names the tasks, so the table shows them
+    assert set(said) == set(cfg.tasks) and all(said.values())
     folds = report["glc"]["folds"]
     assert [f["predicts"] for f in folds] == [[cfg.tasks[0]], [cfg.tasks[1]]]
     assert all(f["eval"] and f["eval"]["heldout"] for f in folds)

@@ -69,10 +69,12 @@ def demo_collections(cfg: ExperimentConfig, out: Path) -> dict[str, CollectConfi
 
 def task_instructions(metas: Iterable[Mapping[str, Any]]) -> dict[str, str]:
     """{task: its instruction} of episodes' metadata (`EpisodeStore.meta`), sorted by task (the first
-    episode's, when a task's episodes differ)."""
+    episode's, when a task's episodes differ). The task is the one the collection ran and the evaluation names
+    (`env_name`, e.g. `libero_spatial/4`), not the simulator's own name for it (`task`, e.g. LIBERO's
+    `pick_up_the_black_bowl_...`), which only episodes recorded without `env_name` fall back on."""
     out: dict[str, str] = {}
     for meta in metas:
-        out.setdefault(str(meta["task"]), str(meta.get("instruction", "")))
+        out.setdefault(str(meta.get("env_name", meta["task"])), str(meta.get("instruction", "")))
     return dict(sorted(out.items()))
 
 
