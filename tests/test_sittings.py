@@ -63,6 +63,30 @@ def test_the_study_takes_its_arm_pairs_and_alternates_the_demonstration_counts_s
     ]
 
 
+def test_a_libero_suite_runs_its_table_arms_seed_by_seed_and_the_shuffled_gaze_after_them_on_both_cores():
+    """Baseline and gaze, then glc and uniform (the paper table's arms) at every seed; the shuffled-gaze control
+    alone afterwards, its one run training with both cores' threads (an execution key: the same run)."""
+    spatial = sittings.SCHEDULES["libero-spatial"]
+    core = [f"libero-spatial-s{seed}{pair}" for seed in (0, 1, 2) for pair in ("", "-glc")]
+    assert [s.name for s in spatial.sittings()] == core + [
+        f"libero-spatial-s{x}-perturbed" for x in (0, 1, 2)
+    ]
+    named = {s.name: s for s in spatial.sittings()}
+    assert named["libero-spatial-s1-glc"].command()[-5:] == [
+        "--arms",
+        "glc",
+        "uniform",
+        "--out",
+        "runs/libero-spatial-s1-glc",
+    ]
+    alone = named["libero-spatial-s0-perturbed"].command()
+    assert alone[alone.index("--arms") :] == [
+        "--arms", "perturbed", "--threads-per-run", "2", "--out", "runs/libero-spatial-s0-perturbed"
+    ]  # fmt: skip
+    cfg = built_config(tuple(alone))
+    assert cfg.threads_per_run == 2 and cfg.arms == ("perturbed",)
+
+
 def test_a_sittings_command_is_its_arms_at_its_seed_with_the_first_sittings_data_when_here(tmp_path):
     named = {s.name: s for s in STUDY.sittings()}
     s0, s0_glc, s1 = named["study50-s0"], named["study50-s0-glc"], named["study50-s1"]

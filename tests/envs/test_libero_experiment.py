@@ -55,7 +55,7 @@ def test_the_libero_smoke_experiment_runs_every_stage(tmp_path):
     assert main(["--preset", "libero_smoke", "--out", str(out)]) == 0
     cfg = libero_smoke()
     report = json.loads((out / "report.json").read_text())
-    arms = {"baseline", "gaze", "glc", "perturbed"}
+    arms = {"baseline", "gaze", "glc", "uniform", "perturbed"}
     assert set(report["success"]) == arms and set(report["alignment"]) == arms
     for arm in report["success"].values():
         assert arm["clean"]["n"] == 2 * 2 and arm["dim:0.7"]["n"] == arm["gaussian_noise:0.5"]["n"] == 2 * 1

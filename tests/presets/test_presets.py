@@ -72,9 +72,18 @@ ADDED_SINCE = {
 """presets added after the snapshot (nothing to compare them with)"""
 
 
-CHANGED_SINCE = {("experiment", "libero"): {".train.mixed_precision": ("auto", "no")}}
+CHANGED_SINCE = {
+    ("experiment", "libero"): {
+        ".arms": (["baseline", "gaze", "glc", "perturbed"], ["baseline", "gaze", "glc", "uniform", "perturbed"]),
+        ".train.mixed_precision": ("auto", "no"),
+    },
+    ("experiment", "libero_smoke"): {
+        ".arms": (["baseline", "gaze", "glc", "perturbed"], ["baseline", "gaze", "glc", "uniform", "perturbed"]),
+    },
+}
 """values changed on purpose since the snapshot, (snapshot kind, name) -> {path: (before, now)}: LIBERO trains in
-float32 on every CPU, as its sittings run on whichever CPU a session gets (config_sims.libero_suite)"""
+float32 on every CPU, as its sittings run on whichever CPU a session gets, and adds the uniform control of the
+paper's table (config_sims.libero_suite)"""
 
 
 def test_every_preset_keeps_its_values_under_its_new_name(two_cores):

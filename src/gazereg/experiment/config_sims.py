@@ -21,7 +21,8 @@ from gazereg.training.config import cpu as cpu_train
 
 def libero_suite(eval_preset: str, out: Path) -> ExperimentConfig:
     """The LIBERO experiment over the 10 tasks of the evaluation budget `eval_preset` (`libero-spatial-25`,
-    `libero-object-25`): baseline, gaze (visuomotor), cross-fitted glc and perturbed gaze, one training seed, the
+    `libero-object-25`): baseline, gaze (visuomotor), cross-fitted glc, uniform (the generic-regularization
+    control of the paper's table) and perturbed gaze (the shuffled prior), one training seed, the
     agentview camera at 128 px (patches of 16 px: the 8 x 8 grid of the other presets), evaluated on initial
     states 25..49 clean, and on the first 5 of them per task dimmed (`dim:0.7`) and with sensor noise
     (`gaussian_noise:0.5`): 250 pairs per arm clean, 50 per perturbed condition.
@@ -46,7 +47,7 @@ def libero_suite(eval_preset: str, out: Path) -> ExperimentConfig:
         demo_max_failures=0,
         demo_max_steps=ev.max_steps,  # a demonstration may take as long as an evaluation episode
         heldout_per_task=2,
-        arms=("baseline", "gaze", "glc", "perturbed"),
+        arms=("baseline", "gaze", "glc", "uniform", "perturbed"),
         glc_steps=300,
         glc_folds=(tasks[: len(tasks) // 2], tasks[len(tasks) // 2 :]),
         train=replace(

@@ -43,6 +43,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from gazereg.experiment.config import ExperimentConfig
 from gazereg.experiment.config_finetune import GLC_ML45
 from gazereg.experiment.finished import stage_marker
 from gazereg.experiment.pool import main as pool_main
@@ -128,6 +129,10 @@ class Sitting:
     seed: int
     arms: tuple[str, ...]
     first_group: bool
+    threads_per_run: int = 1
+    """threads of each training process: the preset's `parallel` shared by the group's runs, so that a group
+    smaller than `parallel` (a last arm alone) still keeps every core busy; an execution key, not part of
+    what the run measured"""
 
     @property
     def name(self) -> str:
@@ -141,7 +146,8 @@ class Sitting:
     def command(self) -> list[str]:
         """The sitting's `gazereg experiment` command line, what its run is checked against."""
         cmd = ["gazereg", "experiment", "--preset", self.part.preset, "--train-seeds", str(self.seed)]
-        return [*cmd, "--arms", *self.arms, "--out", self.folder.as_posix()]
+        threads = ["--threads-per-run", str(self.threads_per_run)] if self.threads_per_run > 1 else []
+        return [*cmd, "--arms", *self.arms, *threads, "--out", self.folder.as_posix()]
 
 
 @dataclass(frozen=True)
@@ -155,9 +161,13 @@ class Schedule:
 
     def arm_groups(self, part: Part) -> list[tuple[str, ...]]:
         """The part's preset's arms in groups of its `parallel`, in order."""
-        cfg = built_config(("gazereg", "experiment", "--preset", part.preset))
+        cfg = _preset(part)
         size = max(1, cfg.parallel)
         return [tuple(cfg.arms[i : i + size]) for i in range(0, len(cfg.arms), size)]
+
+    def sitting(self, part: Part, seed: int, index: int, arms: tuple[str, ...]) -> Sitting:
+        """The sitting of the part's `index`-th arm group `arms` at `seed`."""
+        return Sitting(part, seed, arms, index == 0, max(1, _preset(part).parallel // len(arms)))
 
     def sittings(self) -> list[Sitting]:
         """Every sitting in the order they run: core groups seed by seed, then follow-up groups likewise."""
@@ -167,7 +177,7 @@ class Schedule:
             {p: [] if p.core is None else g[p.core :] for p, g in groups.items()},
         ]
         return [
-            Sitting(part, seed, arms, i == 0)
+            self.sitting(part, seed, i, arms)
             for phase in phases
             for seed in self.seeds
             for part in self.parts
@@ -176,7 +186,11 @@ class Schedule:
 
     def first(self, part: Part) -> Sitting:
         """The part's first sitting: its first arm group at the first seed."""
-        return Sitting(part, self.seeds[0], self.arm_groups(part)[0], True)
+        return self.sitting(part, self.seeds[0], 0, self.arm_groups(part)[0])
+
+
+def _preset(part: Part) -> ExperimentConfig:
+    return built_config(("gazereg", "experiment", "--preset", part.preset))
 
 
 SCHEDULES: dict[str, Schedule] = {
@@ -185,10 +199,10 @@ SCHEDULES: dict[str, Schedule] = {
         prerequisites=(STUDY_GLC,),
         doc="issue 36's study: the ML45 generalist fine-tuned on the 5 held-out tasks, 10 and 50 demos",
     ),
-    "libero-spatial": Schedule((Part("libero-spatial", "libero"),), doc="LIBERO-Spatial, 3 seeds"),
-    "libero-object": Schedule((Part("libero-object", "libero_object"),), doc="LIBERO-Object"),
-    "libero-goal": Schedule((Part("libero-goal", "libero_goal"),), doc="LIBERO-Goal"),
-    "libero-10": Schedule((Part("libero-10", "libero_10"),), doc="LIBERO-10 (long-horizon)"),
+    "libero-spatial": Schedule((Part("libero-spatial", "libero", core=2),), doc="LIBERO-Spatial, 3 seeds"),
+    "libero-object": Schedule((Part("libero-object", "libero_object", core=2),), doc="LIBERO-Object"),
+    "libero-goal": Schedule((Part("libero-goal", "libero_goal", core=2),), doc="LIBERO-Goal"),
+    "libero-10": Schedule((Part("libero-10", "libero_10", core=2),), doc="LIBERO-10 (long-horizon)"),
     "aloha": Schedule((Part("aloha", "aloha"),), doc="Gym-Aloha's transfer cube and insertion"),
 }
 """every schedule by name (`gazereg sittings NAME`); each part's preset is one of gazereg.experiment.config's"""
