@@ -115,7 +115,7 @@ def test_the_libero_preset():
     cfg = libero()
     assert len(cfg.tasks) == 10 and cfg.camera == "agentview_rgb" and cfg.image_size == 128
     assert cfg.train.policy.image_hw == (128, 128) and cfg.train.policy.patch_size == 16
-    assert set(cfg.arms) == {"baseline", "gaze", "glc", "perturbed"} and cfg.train_seeds == (0,)
+    assert cfg.arms == ("baseline", "gaze", "glc", "uniform", "perturbed") and cfg.train_seeds == (0,)
     assert cfg.eval.conditions == ("clean", "dim:0.7", "gaussian_noise:0.5") and cfg.eval.max_steps == 220
     assert (
         len(cfg.eval.seeds("clean")) == 25 and len(cfg.eval.seeds("dim:0.7")) == cfg.eval.robustness_episodes
