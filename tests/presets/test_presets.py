@@ -74,11 +74,17 @@ ADDED_SINCE = {
 
 CHANGED_SINCE = {
     ("experiment", "libero"): {
-        ".arms": (["baseline", "gaze", "glc", "perturbed"], ["baseline", "gaze", "glc", "uniform", "perturbed"]),
+        ".arms": (
+            ["baseline", "gaze", "glc", "perturbed"],
+            ["baseline", "gaze", "glc", "uniform", "perturbed"],
+        ),
         ".train.mixed_precision": ("auto", "no"),
     },
     ("experiment", "libero_smoke"): {
-        ".arms": (["baseline", "gaze", "glc", "perturbed"], ["baseline", "gaze", "glc", "uniform", "perturbed"]),
+        ".arms": (
+            ["baseline", "gaze", "glc", "perturbed"],
+            ["baseline", "gaze", "glc", "uniform", "perturbed"],
+        ),
     },
 }
 """values changed on purpose since the snapshot, (snapshot kind, name) -> {path: (before, now)}: LIBERO trains in
