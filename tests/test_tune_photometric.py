@@ -25,6 +25,7 @@ def tune(tmp_path, monkeypatch, load_script):
     monkeypatch.setattr(module, "ROOT", tmp_path)
     monkeypatch.setattr(module, "DOCS", tmp_path / "docs" / "tuning")
     monkeypatch.setattr(module, "RECORDS", tmp_path / "docs" / "records" / "tune-photometric")
+    monkeypatch.setattr(module, "PLACEMENTS", tmp_path / "placements.json")
     return module
 
 
@@ -105,6 +106,20 @@ def test_the_choice_pools_the_conditions_ties_to_the_weaker(tune):
     text = tune.table()
     assert "- **p0.25**, brightness, contrast and saturation jitter 0.25: `--train.photometric.brightness 0.25 " \
         "--train.photometric.contrast 0.25 --train.photometric.saturation 0.25` in every arm's recipe" in text  # fmt: skip
+
+
+def test_the_candidates_are_recounted_on_the_tasks_whose_placements_were_at_rest(tune):
+    """With the placement check of the env the candidates ran on, a second table counts only the tasks whose
+    validation placements were all at rest; without the file there is none."""
+    fake_archive(tune, "p0", {"clean": 60, "dim:0.7": 10, "gaussian_noise:0.5": 30})
+    assert "Recounted" not in tune.table()
+    unsettled = {"libero_spatial/3": 2, "libero_spatial/4": 10}
+    check = {"tasks": [{"task": t, "sampled": {"unsettled": unsettled.get(t, 0)}} for t in TASKS]}
+    tune.PLACEMENTS.write_text(json.dumps(check))
+    text = tune.table()
+    assert "(libero_spatial/0, libero_spatial/1, libero_spatial/2, libero_spatial/5, libero_spatial/6," in text
+    # clean: the first 60 setups succeed (tasks 0..5), of which tasks 0, 1, 2 and 5 are counted
+    assert "| p0 | 40/80 = 0.50 | 10/40 = 0.25 | 20/40 = 0.50 | 70/160 = 0.44 |" in text
 
 
 def test_an_archive_of_another_command_is_refused(tune):

@@ -177,6 +177,41 @@ def test_a_setup_from_sampled_from_on_is_a_sampled_placement_of_its_own():
         e.close()
 
 
+def test_a_sampled_placement_sets_objects_on_their_fixtures_at_rest():
+    """LIBERO places an object that starts on a fixture (task 9: one bowl on the wooden cabinet, one on the
+    stove) from the fixture's site position as if the fixture were at its compiled pose, which a model kept
+    across resets is not: the env puts the fixtures back first (`home_fixtures`). Without that, both bowls
+    start in mid-air and fall. After a fixed setup, sampled placements keep every object still over 20 no-op
+    steps with LIBERO's own fixture predicates true, and the fixed setup is the same scene again after them."""
+    from gazereg.envs.libero.env import NOOP_ACTION, LiberoEnv
+    from gazereg.envs.libero.setup import SAMPLED_FROM
+
+    e = LiberoEnv("libero_spatial/9", cameras=(), settle_steps=10)
+    try:
+        e.reset(seed=25)
+        fixed_pose = e.physics_model.body_pos.copy()
+        robosuite_env = e.unwrapped_libero.env
+        on_fixtures = [
+            p
+            for p in robosuite_env.parsed_problem["initial_state"]
+            if p[0].lower() == "on" and p[2].split("_1_")[0] in ("wooden_cabinet", "flat_stove")
+        ]
+        assert len(on_fixtures) == 2, on_fixtures
+        bodies = [e.physics_model.body(o.root_body).id for o in robosuite_env.objects_dict.values()]
+        for seed in (SAMPLED_FROM, SAMPLED_FROM + 1):
+            e.reset(seed=seed)
+            assert all(robosuite_env._eval_predicate(p) for p in on_fixtures), seed
+            before = e.physics_data.xpos[bodies].copy()
+            for _ in range(20):
+                e.step(NOOP_ACTION)
+            moved = np.linalg.norm(e.physics_data.xpos[bodies] - before, axis=1)
+            assert moved.max() < 0.02, (seed, moved)
+        e.reset(seed=25)
+        np.testing.assert_array_equal(e.physics_model.body_pos, fixed_pose)
+    finally:
+        e.close()
+
+
 @pytest.mark.parametrize("suite", ["libero_object", "libero_goal", "libero_10"])
 def test_every_suite_resets_and_steps(suite):
     from gazereg.envs.libero.env import LiberoEnv

@@ -61,7 +61,6 @@ is closed by `close()`, or at exit before EGL's own atexit handler runs (see `ga
 from __future__ import annotations
 
 import contextlib
-import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -80,13 +79,11 @@ from gazereg.envs.libero.render import (
 from gazereg.envs.libero.scene import SceneFacts, TaskRoles, quat_xyzw_to_axis_angle
 from gazereg.envs.libero.setup import (
     SUITE_MAX_STEPS,
-    clear_transients,
-    fixed_states,
+    fixture_homes,
     import_libero,
-    init_states,
     make_control_env,
     parse_task,
-    placement_rng,
+    reset_scene,
     resolve_task,
     setup_index,
     suite_benchmark,
@@ -160,6 +157,7 @@ class LiberoEnv(gym.Env):
         """The state before any task is built: setup `seed` comes next."""
         self._env: Any = None
         self._facts: SceneFacts | None = None
+        self._fixture_homes: dict[int, Any] = {}
         self._task_index: int | None = None
         self._renderer: FastRenderer | None = None
         self._mirror: VisualMirror | None = None
@@ -186,6 +184,7 @@ class LiberoEnv(gym.Env):
         self._env = make_control_env(bddl, CONTROL_FREQ)
         self._task_index = index
         self._facts = SceneFacts(self._env.env)
+        self._fixture_homes = fixture_homes(self._env.env)
         self._geometry = {}
         # The benchmark's task language (from the BDDL file name), as OpenVLA's and LeRobot's LIBERO data use;
         # the BDDL's own `(:language ...)` line sometimes differs ("Pick the akita black bowl ...").
@@ -261,17 +260,9 @@ class LiberoEnv(gym.Env):
         self._setup_seed = setup
         self._next_seed = setup + 1
         self._init_index = k
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            fixed = k < fixed_states(self.suite, t)  # else sampled: twice, as LIBERO places some objects
-            for _ in range(1 if fixed else 2):  # relative to the fixtures' last poses
-                with placement_rng(self.suite, t, k):
-                    self._rs_obs = self._env.reset()
-            clear_transients(self._env, self.physics_data)
-            if fixed:
-                self._rs_obs = self._env.set_init_state(init_states(self.suite, t)[k])
-            for _ in range(self.settle_steps):
-                self._rs_obs, _, _, _ = self._env.step(NOOP_ACTION)
+        self._rs_obs = reset_scene(self._env, self.physics_data, self.suite, (t, k), self._fixture_homes)
+        for _ in range(self.settle_steps):
+            self._rs_obs, _, _, _ = self._env.step(NOOP_ACTION)
         self._steps = 0
         self._noise_rng = np.random.default_rng([self.noise_seed, setup])
         if self._renderer is not None:

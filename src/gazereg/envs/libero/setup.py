@@ -223,6 +223,63 @@ def placement_rng(suite: str, task: int, init: int) -> Iterator[None]:
         np.random.set_state(state)
 
 
+def fixture_homes(control_env: Any) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """The fixtures' root bodies' poses as compiled from the task's XML: body id -> (pos (3,), quat (4,) w-first).
+
+    LIBERO's reset samples the fixtures' poses into the model and then places the objects that sit on a fixture
+    (a bowl on the stove, on the cabinet) at the fixture's sampled pose plus its site's world position, which is
+    the site's offset only while the fixture is still at its compiled pose (the origin: every LIBERO fixture's
+    root body has no pos or quat in the XML). A fresh model (hard_reset=True) has it there; ours, kept across
+    resets, has the last setup's poses, so those objects would be placed off their fixture, in mid-air, and
+    fall. `home_fixtures` puts them back before a reset that samples a placement."""
+    import xml.etree.ElementTree as ET
+
+    root = ET.fromstring(control_env.model.get_xml())
+    model = control_env.sim.model
+    homes = {}
+    for fixture in control_env.fixtures_dict.values():
+        el = root.find(f".//body[@name='{fixture.root_body}']")
+        if el is None:
+            raise KeyError(f"fixture body {fixture.root_body!r} is not in the task's XML")
+        if any(el.get(k) is not None for k in ("euler", "axisangle", "xyaxes", "zaxis")):
+            raise ValueError(
+                f"fixture body {fixture.root_body!r}: only pos and quat orientations are handled"
+            )
+        pos = np.array(el.get("pos", "0 0 0").split(), dtype=np.float64)
+        quat = np.array(el.get("quat", "1 0 0 0").split(), dtype=np.float64)
+        homes[model.body_name2id(fixture.root_body)] = (pos, quat)
+    return homes
+
+
+def home_fixtures(control_env: Any, homes: dict[int, tuple[np.ndarray, np.ndarray]]) -> None:
+    """Put the fixtures back at their compiled poses (`fixture_homes`) in the model."""
+    model = control_env.sim.model
+    for body, (pos, quat) in homes.items():
+        model.body_pos[body] = pos
+        model.body_quat[body] = quat
+
+
+def reset_scene(
+    control_env: Any, physics_data: Any, suite: str, setup: tuple[int, int], homes: dict[int, Any]
+) -> dict[str, Any]:
+    """Reset LIBERO's `control_env` to setup (task index, initial-state index) and return robosuite's
+    observation: a fixed initial state set after LIBERO's reset, or (at and past `fixed_states`) the placement
+    LIBERO's reset samples, with the fixtures first put back at their compiled poses (`homes`, from
+    `fixture_homes`); both seeded by the setup (`placement_rng`), the last episode's transients cleared."""
+    task, init = setup
+    fixed = init < fixed_states(suite, task)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        if not fixed:
+            home_fixtures(control_env.env, homes)
+        with placement_rng(suite, task, init):
+            obs = control_env.reset()
+        clear_transients(control_env, physics_data)
+        if fixed:
+            obs = control_env.set_init_state(init_states(suite, task)[init])
+    return obs
+
+
 def clear_transients(control_env: Any, physics_data: Any) -> None:
     """What hard_reset=False would carry over from the last episode besides qpos/qvel (which the initial state
     sets): the grippers' accumulated command, actuator controls and the solver's warm start. Without
