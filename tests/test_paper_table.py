@@ -13,6 +13,7 @@ import pytest
 
 from gazereg.evaluation.stats import mcnemar_exact
 from gazereg.experiment.finished import read_run
+from gazereg.experiment.pooled import pooled_runs, read_results
 from gazereg.report.paper_table import PAPER, axis_of, paper_table
 from gazereg.runtime.errors import UsageError
 
@@ -26,6 +27,10 @@ def fake_run(dest, env, tasks, outcomes):
     cfg = json.loads((dest / "config.json").read_text())
     cfg.update(env=env, tasks=list(tasks), arms=sorted({arm for arm, _, _ in outcomes}), train_seeds=[0])
     (dest / "config.json").write_text(json.dumps(cfg))
+    train = dest / "stages" / "train.json"
+    record = json.loads(train.read_text())
+    record["runs"] = {f"{arm}@s0": {} for arm in cfg["arms"]}
+    train.write_text(json.dumps(record))
     episodes = [
         {
             "arm": f"{arm}@s0",
@@ -160,12 +165,49 @@ def test_the_script_writes_the_table_or_refuses_in_one_line(spatial, tmp_path, c
     assert not (tmp_path / "x.md").exists()
 
 
-PAGE_RUNS: dict[str, str] = {}
-"""the archives docs/paper-benchmarks.md's block is rendered from (ROW: docs/records/NAME); none yet"""
+def test_sittings_are_pooled_into_one_row(spatial, tmp_path, load_script):
+    """A suite run in sittings (baseline and gaze in one folder, uniform in another) gives the row one folder of
+    all three would: given folder by folder to the script, or as a pooled report's folder; folders of other
+    tasks, or one run in two folders, are refused."""
+    task = "libero_spatial/0"
+    core = fake_run(
+        tmp_path / "s0",
+        "libero",
+        ("libero_spatial",),
+        {("baseline", "clean", task): BASE, ("gaze", "clean", task): GAZE},
+    )
+    more = fake_run(tmp_path / "s0-glc", "libero", ("libero_spatial",), {("uniform", "clean", task): UNIFORM})
+    clean = lambda text: line(text, "| LIBERO-Spatial |")  # noqa: E731
+    whole = clean(paper_table({"libero_spatial": spatial}))
+    assert clean(paper_table({"libero_spatial": pooled_runs([core, more])})) == whole
+    pooled = tmp_path / "pooled"
+    pooled.mkdir()
+    (pooled / "pooled.json").write_text(json.dumps({"folders": [str(core.path), str(more.path)]}))
+    assert clean(paper_table({"libero_spatial": read_results(pooled)})) == whole
+    assert read_results(core.path).path == core.path  # a single folder is read as itself
+    script = load_script("scripts/paper_table.py", "paper_table_script")
+    out = tmp_path / "t.md"
+    assert script.main(["--run", f"libero_spatial={core.path},{more.path}", "--out", str(out)]) == 0
+    assert clean(out.read_text()) == whole
+    with pytest.raises(UsageError, match=r"baseline@s0 is in both .*s0 and .*spatial"):
+        pooled_runs([core, spatial])
+    other = fake_run(tmp_path / "o", "libero", ("libero_object",), {("uniform", "clean", task): [1]})
+    with pytest.raises(UsageError, match="not one experiment with"):
+        pooled_runs([core, other])
+
+
+PAGE_RUNS: dict[str, str] = {
+    "libero_spatial": "docs/records/libero-spatial-s0,docs/records/libero-spatial-s0-glc",
+}
+"""the archives docs/paper-benchmarks.md's block is rendered from (ROW: docs/records/NAME[,NAME...], as the
+script's --run takes them)"""
 
 
 def test_the_committed_block_is_the_tables_of_its_archives(script):
     page = ROOT / "docs" / "paper-benchmarks.md"
     block = script.read_block(page, "paper-table")
-    runs = {row: read_run(ROOT / folder) for row, folder in PAGE_RUNS.items()}
+    runs = {
+        row: pooled_runs([read_run(ROOT / f) for f in folders.split(",")])
+        for row, folders in PAGE_RUNS.items()
+    }
     assert block.strip() == paper_table(runs).strip()
