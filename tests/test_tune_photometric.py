@@ -117,7 +117,9 @@ def test_the_candidates_are_recounted_on_the_tasks_whose_placements_were_at_rest
     check = {"tasks": [{"task": t, "sampled": {"unsettled": unsettled.get(t, 0)}} for t in TASKS]}
     tune.PLACEMENTS.write_text(json.dumps(check))
     text = tune.table()
-    assert "(libero_spatial/0, libero_spatial/1, libero_spatial/2, libero_spatial/5, libero_spatial/6," in text
+    assert (
+        "(libero_spatial/0, libero_spatial/1, libero_spatial/2, libero_spatial/5, libero_spatial/6," in text
+    )
     # clean: the first 60 setups succeed (tasks 0..5), of which tasks 0, 1, 2 and 5 are counted
     assert "| p0 | 40/80 = 0.50 | 10/40 = 0.25 | 20/40 = 0.50 | 70/160 = 0.44 |" in text
 
