@@ -1,4 +1,4 @@
-"""The LIBERO-Object, LIBERO-Goal and LIBERO-10 expert tables in docs/libero.md are what `bench_libero.py --markdown`
+"""The four LIBERO suites' expert tables in docs/libero.md are what `bench_libero.py --markdown`
 renders from the committed JSON (their numbers come from the measurement, not typed); the markdown mode needs
 no LIBERO."""
 
@@ -8,7 +8,7 @@ import pytest
 from docs_blocks import ROOT, markdown
 
 
-@pytest.mark.parametrize("suite", ["libero_object", "libero_goal", "libero_10"])
+@pytest.mark.parametrize("suite", ["libero_spatial", "libero_object", "libero_goal", "libero_10"])
 def test_the_expert_block_is_rendered_from_the_committed_json(script, suite):
     out = markdown("bench_libero.py", ROOT / "docs" / "benchmarks" / f"{suite}_expert.json")
     assert out.returncode == 0, out.stderr
