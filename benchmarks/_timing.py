@@ -86,3 +86,13 @@ def print_markdown(path: Path, render: Callable[[dict[str, Any], str], str], pro
         return 2
     print(render(json.loads(path.read_text()), path.name))
     return 0
+
+
+def emit(out: dict[str, object], path: Path | None) -> None:
+    """Print `out` as JSON and, with `path`, write it there atomically."""
+    text = json.dumps(out, indent=1)
+    print(text)
+    if path is not None:
+        from gazereg.runtime.io import atomic_write_text
+
+        atomic_write_text(path, text + "\n")

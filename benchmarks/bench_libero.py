@@ -27,7 +27,7 @@ import sys
 import time
 from pathlib import Path
 
-from _timing import machine_info, print_markdown
+from _timing import emit, machine_info, print_markdown
 
 
 def run(
@@ -121,16 +121,6 @@ def expert_report(suite: str, inits: int, noise: float, max_steps: int) -> dict[
         "seconds": time.perf_counter() - t_all,
         "tasks": tasks,
     }
-
-
-def emit(out: dict[str, object], path: Path | None) -> None:
-    """Print `out` as JSON and, with `path`, write it there atomically."""
-    text = json.dumps(out, indent=1)
-    print(text)
-    if path is not None:
-        from gazereg.runtime.io import atomic_write_text
-
-        atomic_write_text(path, text + "\n")
 
 
 def expert_markdown(result: dict, source: str) -> str:

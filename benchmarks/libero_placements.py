@@ -22,7 +22,7 @@ import json
 import time
 from pathlib import Path
 
-from _timing import machine_info, print_markdown
+from _timing import emit, machine_info, print_markdown
 
 
 def task_report(suite: str, task: int, setups: int, steps: int, tolerance: float) -> dict[str, object]:
@@ -132,12 +132,7 @@ def main() -> int:
         "seconds": round(time.perf_counter() - t0, 1),
         "tasks": tasks,
     }
-    text = json.dumps(result, indent=1)
-    print(text)
-    if args.out is not None:
-        from gazereg.runtime.io import atomic_write_text
-
-        atomic_write_text(args.out, text + "\n")
+    emit(result, args.out)
     return 0
 
 

@@ -140,13 +140,13 @@ def table() -> str:
         "",
     ]
     header = ("candidate", "change", *CONDITIONS, "all conditions", "clean per task")
-    rows, scores = [], {}
+    rows, scores, episodes = [], {}, {}
     for cand in CANDIDATES:
         run = finished(cand)
         if run is None:
             rows.append([cand.name, cand.change, "not run yet", *[""] * (len(CONDITIONS) + 1)])
             continue
-        eps = run.episodes()
+        eps = episodes[cand.name] = run.episodes()
         per = [rate_text(validation_successes(eps, (c,))) for c in CONDITIONS]
         pooled = validation_successes(eps, CONDITIONS)
         scores[cand.name] = totals(pooled)[0]
@@ -154,7 +154,7 @@ def table() -> str:
             [cand.name, cand.change, *per, rate_text(pooled), per_task_text(validation_successes(eps))]
         )
     lines += markdown_table(header, rows)
-    lines += sound_table()
+    lines += sound_table(episodes)
     lines += [
         "",
         "Chosen (the most validation successes over the three conditions, ties to the earlier):",
@@ -178,9 +178,10 @@ def at_rest_tasks() -> list[str] | None:
     return [t["task"] for t in json.loads(PLACEMENTS.read_text())["tasks"] if t["sampled"]["unsettled"] == 0]
 
 
-def sound_table() -> list[str]:
+def sound_table(episodes: dict[str, list[dict]]) -> list[str]:
     """The candidates recounted on the tasks whose validation placements were at rest (`at_rest_tasks`): the
-    comparison without the scenes that were not the task. A check, not the protocol's choice."""
+    comparison without the scenes that were not the task. A check, not the protocol's choice. episodes:
+    {candidate name: its evaluation records}, the candidates run so far, in the protocol's order."""
     tasks = at_rest_tasks()
     if not tasks:
         return []
@@ -193,13 +194,10 @@ def sound_table() -> list[str]:
         "",
     ]
     rows = []
-    for cand in CANDIDATES:
-        run = finished(cand)
-        if run is None:
-            continue
-        eps = [ep for ep in run.episodes() if ep["task"] in tasks]
+    for name, records in episodes.items():
+        eps = [ep for ep in records if ep["task"] in tasks]
         per = [rate_text(validation_successes(eps, (c,))) for c in CONDITIONS]
-        rows.append([cand.name, *per, rate_text(validation_successes(eps, CONDITIONS))])
+        rows.append([name, *per, rate_text(validation_successes(eps, CONDITIONS))])
     return lines + markdown_table(("candidate", *CONDITIONS, "all conditions"), rows)
 
 
