@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from gazereg.evaluation.stats import mcnemar_exact
+from gazereg.evaluation.stats import mcnemar_exact, unit_mean_difference
 from gazereg.experiment.finished import read_run
 from gazereg.experiment.pooled import pooled_runs, read_results
 from gazereg.report.paper_table import PAPER, axis_of, paper_table
@@ -20,20 +20,20 @@ from gazereg.runtime.errors import UsageError
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def fake_run(dest, env, tasks, outcomes):
+def fake_run(dest, env, tasks, outcomes, seed=0):
     """An archive of a `env` run over `tasks` whose final evaluation is `outcomes`: {(arm, condition, task):
-    successes per setup (1000..)}, training seed 0."""
+    successes per setup (1000..)}, training seed `seed`."""
     shutil.copytree(ROOT / "docs" / "records" / "paper-abl-b", dest)
     cfg = json.loads((dest / "config.json").read_text())
-    cfg.update(env=env, tasks=list(tasks), arms=sorted({arm for arm, _, _ in outcomes}), train_seeds=[0])
+    cfg.update(env=env, tasks=list(tasks), arms=sorted({arm for arm, _, _ in outcomes}), train_seeds=[seed])
     (dest / "config.json").write_text(json.dumps(cfg))
     train = dest / "stages" / "train.json"
     record = json.loads(train.read_text())
-    record["runs"] = {f"{arm}@s0": {} for arm in cfg["arms"]}
+    record["runs"] = {f"{arm}@s{seed}": {} for arm in cfg["arms"]}
     train.write_text(json.dumps(record))
     episodes = [
         {
-            "arm": f"{arm}@s0",
+            "arm": f"{arm}@s{seed}",
             "condition": cond,
             "task": task,
             "seed": 1000 + i,
@@ -86,8 +86,34 @@ def test_a_suite_row_is_recounted_from_its_episodes(spatial):
     assert row[5].endswith("(7/10)")
     p = mcnemar_exact([bool(x) for x in GAZE], [bool(x) for x in BASE])["p_value"]
     assert row[6].startswith("+30.0 [") and row[6].endswith(f"p {p:.2g}")
-    assert row[7] == f"p {mcnemar_exact(GAZE, UNIFORM)['p_value']:.2g}"
-    assert row[8] == "pi0 85.9 -> 95.5; OpenVLA 76.0 -> 82.2 |"
+    assert row[7] == "one seed"
+    assert row[8] == f"p {mcnemar_exact(GAZE, UNIFORM)['p_value']:.2g}"
+    assert row[9] == "pi0 85.9 -> 95.5; OpenVLA 76.0 -> 82.2 |"
+
+
+def test_seeds_that_disagree_show_per_seed_and_widen_the_seed_level_interval(spatial, tmp_path):
+    """Seed 1 reverses seed 0 (gaze and baseline swap outcomes): pooled, the episodes' McNemar sees no
+    difference; per seed the row shows +30 and -30 points and their mean with the t interval over two seeds."""
+    task = "libero_spatial/0"
+    flipped = fake_run(
+        tmp_path / "s1",
+        "libero",
+        ("libero_spatial",),
+        {
+            ("baseline", "clean", task): GAZE,
+            ("gaze", "clean", task): BASE,
+            ("uniform", "clean", task): UNIFORM,
+        },
+        seed=1,
+    )
+    text = paper_table({"libero_spatial": pooled_runs([spatial, flipped])})
+    row = line(text, "| LIBERO-Spatial |").split(" | ")
+    assert row[1] == "2"
+    assert row[2].endswith("(13/20)") and row[3].endswith("(13/20)")
+    assert row[6].startswith("+0.0 [") and row[6].endswith("p 1")
+    half = 100 * unit_mean_difference([0.3, -0.3])["ci95"][1]
+    assert half > 300  # two seeds of opposite sign: t with one degree of freedom
+    assert row[7] == f"+30.0, -30.0; +0.0 [{-half:+.1f}, {half:+.1f}]"
 
 
 def test_rows_without_a_run_show_the_paper_only_and_robustness_only_the_runs(spatial):
@@ -99,7 +125,9 @@ def test_rows_without_a_run_show_the_paper_only_and_robustness_only_the_runs(spa
     lighting = text[text.index("Robustness, lighting (`dim:0.7`): ") : text.index("Robustness, camera noise")]
     assert "(1/2)" in line(lighting, "| LIBERO-Spatial |") and "(2/2)" in line(lighting, "| LIBERO-Spatial |")
     assert line(lighting, "| LIBERO-Spatial |").endswith("| pi0 77.2 -> 89.1 |")
-    assert line(lighting, "| LIBERO-Goal |") == "| LIBERO-Goal | not run |  |  |  |  |  |  | not reported |"
+    assert (
+        line(lighting, "| LIBERO-Goal |") == "| LIBERO-Goal | not run |  |  |  |  |  |  |  | not reported |"
+    )
     noise = text[text.index("Robustness, camera noise: ") :]  # no run evaluated it: the paper's figures only
     assert line(noise, "| LIBERO-Spatial |").startswith("| LIBERO-Spatial | not run |")
     assert line(noise, "| LIBERO-Spatial |").endswith("| pi0 82.1 -> 91.3 |")

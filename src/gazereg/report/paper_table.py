@@ -6,8 +6,10 @@ arms baseline / gaze / glc / uniform, and the paper's own figures beside them, m
 
 Ours: success in percent pooled over the run's training seeds, with Wilson 95% intervals and the counts; gaze
 against the baseline as the paired success difference (points, 95% interval) and the exact McNemar p on the
-episodes both evaluated (same training seed, task and setup); gaze against uniform (the generic-regularization
-control) by its McNemar p. Robustness: every condition but clean that the run evaluated, named by the paper's
+episodes both evaluated (same training seed, task and setup); the same difference per training seed with, over
+two or more seeds, their mean and Student-t 95% interval (the seed as the unit: McNemar pools the episodes and so
+holds each trained policy fixed, while seeds can disagree in sign); gaze against uniform (the
+generic-regularization control) by its McNemar p. Robustness: every condition but clean that the run evaluated, named by the paper's
 axis where it has one (`dim:*` lighting, `gaussian_noise:*` camera noise).
 
 The paper's figures (`PAPER`) are known only from digests of the PDF, not from the PDF itself: they are cited as
@@ -22,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from gazereg.report.tables import paired_name, paired_tests, success_table
+from gazereg.report.tables import paired_name, paired_tests, success_table, unit_level_tests
 from gazereg.runtime.errors import UsageError
 
 
@@ -166,6 +168,17 @@ def _versus(tests: dict[str, dict[str, Any]], arm: str, reference: str, conditio
     return f"{100 * t['rate_diff']:+.1f} [{100 * lo:+.1f}, {100 * hi:+.1f}], {p}"
 
 
+def _per_seed(records: list[dict[str, Any]], condition: str) -> str:
+    """gaze - baseline per training seed (points), then their mean [Student-t 95%] over the seeds
+    (`tables.unit_level_tests`); "one seed" where the pairs span fewer than two."""
+    t = unit_level_tests(records, "seed").get(paired_name("gaze", "baseline", condition))
+    if t is None:
+        return "one seed"
+    lo, hi = t["ci95"]
+    per = ", ".join(f"{100 * d:+.1f}" for d in t["diffs"])
+    return f"{per}; {100 * t['mean_diff']:+.1f} [{100 * lo:+.1f}, {100 * hi:+.1f}]"
+
+
 def _paper(row: str, axis: str) -> str:
     figures = [f.text() for f in PAPER if f.row == row and f.axis == axis]
     return "; ".join(figures) or "not reported"
@@ -173,9 +186,9 @@ def _paper(row: str, axis: str) -> str:
 
 def row_cells(row: Row, run: FinishedRun | None, condition: str | None, axis: str) -> list[str]:
     """The table cells of `row` under `condition` (None: its run did not evaluate the axis): seeds, each arm of
-    ARMS, gaze - baseline, gaze vs uniform, the paper's figures for `axis`."""
+    ARMS, gaze - baseline pooled and per seed, gaze vs uniform, the paper's figures for `axis`."""
     if run is None or condition is None:
-        return ["not run", *["" for _ in ARMS], "", "", _paper(row.key, axis)]
+        return ["not run", *["" for _ in ARMS], "", "", "", _paper(row.key, axis)]
     records = [r for r in row_records(row, run) if r["condition"] == condition]
     table = success_table(records)
     tests = paired_tests(records, "baseline")
@@ -184,6 +197,7 @@ def row_cells(row: Row, run: FinishedRun | None, condition: str | None, axis: st
     cells += [_cell(table.get(arm, {}).get(condition)) for arm in ARMS]
     cells += [
         _versus(tests, "gaze", "baseline", condition, True),
+        _per_seed(records, condition),
         _versus(uniform, "gaze", "uniform", condition, False),
     ]
     return [*cells, _paper(row.key, axis)]
@@ -211,6 +225,7 @@ def paper_table(runs: Mapping[str, FinishedRun], rows: Sequence[Row] = ROWS) -> 
         "seeds",
         *ARMS,
         "gaze - baseline (points), McNemar",
+        "gaze - baseline per seed; mean [t 95%]",
         "gaze vs uniform",
         "paper (second-hand)",
     ]
