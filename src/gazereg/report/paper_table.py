@@ -9,8 +9,8 @@ against the baseline as the paired success difference (points, 95% interval) and
 episodes both evaluated (same training seed, task and setup); the same difference per training seed with, over
 two or more seeds, their mean and Student-t 95% interval (the seed as the unit: McNemar pools the episodes and so
 holds each trained policy fixed, while seeds can disagree in sign); gaze against uniform (the
-generic-regularization control) by its McNemar p. Robustness: every condition but clean that the run evaluated, named by the paper's
-axis where it has one (`dim:*` lighting, `gaussian_noise:*` camera noise).
+generic-regularization control) by its McNemar p. Robustness: every condition but clean that the run evaluated,
+named by the paper's axis where it has one (`dim:*` lighting, `gaussian_noise:*` camera noise).
 
 The paper's figures (`PAPER`) are known only from digests of the PDF, not from the PDF itself: they are cited as
 such, never computed here, and stand beside ours only as the paper's claim (a pretrained pi0 / OpenVLA fine-tuned
