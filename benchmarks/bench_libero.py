@@ -6,14 +6,17 @@
         --out docs/benchmarks/libero_object_expert.json
     bash scripts/libero_env.sh python benchmarks/bench_libero.py --suite libero_goal --expert-inits 10 \
         --expert-max-steps 300 --out docs/benchmarks/libero_goal_expert.json
+    bash scripts/libero_env.sh python benchmarks/bench_libero.py --expert-inits 50 --tasks 6 \
+        --expert-max-steps 400
 
 Needs the LIBERO venv (scripts/libero_env.sh); elsewhere prints {"skipped": "..."} and exits 0. Times zero
 actions (arm still) on one task, excluding build and reset, plus physics-only steps (no cameras) for
 comparison, with the render copy's simplified meshes (LiberoEnv's default) and with the full meshes, and the
 time of a reset. `--expert-inits N` instead rolls the suite's scripted expert (`make_expert`: SpatialExpert,
 ObjectExpert, GoalExpert) out on initial states 0..N-1 of every task of `--suite` (physics only, no cameras:
-the expert reads object poses) and reports successes, failed initial states, episode lengths and wall time per
-task.
+the expert reads object poses) and reports successes, failed initial states (each with the expert's phase and retries when it
+stopped: a failure in `carry` or later had the object in hand), episode lengths and wall time per task;
+`--tasks` only those of the suite's tasks.
 Prints one JSON object; `--out PATH` also writes it there (atomically), with the machine line.
 `--markdown JSON` measures nothing: it prints an expert JSON's table for docs (no LIBERO needed).
 """
@@ -25,6 +28,7 @@ import json
 import os
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from _timing import emit, machine_info, print_markdown
@@ -70,8 +74,10 @@ def run(
     }
 
 
-def expert_report(suite: str, inits: int, noise: float, max_steps: int) -> dict[str, object]:
-    """The suite's expert (`make_expert`) on initial states 0..inits-1 of each of its tasks."""
+def expert_report(
+    suite: str, inits: int, noise: float, max_steps: int, task_ids: Sequence[int] | None = None
+) -> dict[str, object]:
+    """The suite's expert (`make_expert`) on initial states 0..inits-1 of each of its tasks (or of `task_ids`)."""
     from gazereg.envs.libero.collector import make_expert
     from gazereg.envs.libero.env import LiberoEnv
     from gazereg.envs.libero.setup import import_libero, suite_benchmark
@@ -80,10 +86,10 @@ def expert_report(suite: str, inits: int, noise: float, max_steps: int) -> dict[
     import_libero(None)  # LIBERO's config, without its prompts
     tasks = {}
     t_all = time.perf_counter()
-    for t in range(len(suite_benchmark(suite).get_task_names())):
+    for t in range(len(suite_benchmark(suite).get_task_names())) if task_ids is None else task_ids:
         env = LiberoEnv(f"{suite}/{t}", cameras=(), max_steps=max_steps)
         t0 = time.perf_counter()
-        ok, lengths, failed = 0, [], []
+        ok, lengths, failed, phases = 0, [], [], []
         for k in range(inits):
             env.reset(seed=k)
             expert = make_expert(suite, noise)
@@ -97,12 +103,14 @@ def expert_report(suite: str, inits: int, noise: float, max_steps: int) -> dict[
                 lengths.append(step)
             else:
                 failed.append(k)
+                phases.append({"phase": expert.phase, "retries": getattr(expert, "_tries", 0)})
         tasks[env.task_names[t]] = {
             "task": f"{suite}/{t}",
             "instruction": env.instruction,
             "successes": ok,
             "n": inits,
             "failed_init_states": failed,
+            "failed_phases": phases,
             "mean_length": sum(lengths) / len(lengths) if lengths else None,
             "max_length": max(lengths) if lengths else None,
             "seconds": time.perf_counter() - t0,
@@ -136,13 +144,22 @@ def expert_markdown(result: dict, source: str) -> str:
         "|---|---|---|---|---|---|",
     ]
     for r in sorted(result["tasks"].values(), key=lambda r: int(r["task"].rsplit("/", 1)[1])):
-        failed = ", ".join(map(str, r["failed_init_states"])) or "none"
+        failed = ", ".join(map(failure, r["failed_init_states"], r.get("failed_phases", [None] * r["n"])))
         mean = "-" if r["mean_length"] is None else f"{r['mean_length']:.0f}"  # no success: no length
         longest = "-" if r["max_length"] is None else r["max_length"]
         lines.append(
-            f"| {r['task']} | {r['instruction']} | {r['successes']}/{r['n']} | {mean} | {longest} | {failed} |"
+            f"| {r['task']} | {r['instruction']} | {r['successes']}/{r['n']} | {mean} | {longest} | "
+            f"{failed or 'none'} |"
         )
     return "\n".join(lines)
+
+
+def failure(state: int, phase: dict | None) -> str:
+    """A failed initial state, with the expert's phase when it stopped (and its retries) where recorded."""
+    if phase is None:
+        return str(state)
+    retries = {0: "", 1: ", 1 retry"}.get(phase["retries"], f", {phase['retries']} retries")
+    return f"{state} ({phase['phase']}{retries})"
 
 
 def main() -> int:
@@ -153,6 +170,9 @@ def main() -> int:
     ap.add_argument("--expert-inits", type=int, default=0, help="report the expert on this many init states")
     ap.add_argument("--expert-noise", type=float, default=0.0)
     ap.add_argument("--expert-max-steps", type=int, default=300)
+    ap.add_argument(
+        "--tasks", type=int, nargs="+", default=None, metavar="T", help="--expert-inits: only these task ids"
+    )
     ap.add_argument("--out", type=Path, default=None, help="also write the JSON here")
     ap.add_argument(
         "--markdown", type=Path, default=None, metavar="JSON", help="print an expert JSON's table"
@@ -170,11 +190,19 @@ def main() -> int:
         return 0
     if args.expert_inits > 0:
         from gazereg.envs.libero.collector import EXPERTS
+        from gazereg.envs.libero.setup import import_libero, suite_benchmark
+
+        import_libero(None)
 
         if args.suite not in EXPERTS:
             ap.error(f"--suite {args.suite}: no scripted expert (experts: {', '.join(EXPERTS)})")
+        n_tasks = len(suite_benchmark(args.suite).get_task_names())
+        if args.tasks is not None and not all(0 <= t < n_tasks for t in args.tasks):
+            ap.error(f"--tasks {args.tasks}: {args.suite} has tasks 0..{n_tasks - 1}")
         machine = machine_info()  # before the run: its load average is the one the run started under
-        report = expert_report(args.suite, args.expert_inits, args.expert_noise, args.expert_max_steps)
+        report = expert_report(
+            args.suite, args.expert_inits, args.expert_noise, args.expert_max_steps, args.tasks
+        )
         emit({"benchmark": "libero_expert", "machine": machine, **report}, args.out)
         return 0
     from gazereg.envs.render import select_gl_backend

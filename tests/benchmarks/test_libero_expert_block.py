@@ -4,6 +4,8 @@ no LIBERO."""
 
 from __future__ import annotations
 
+import json
+
 import pytest
 from docs_blocks import ROOT, markdown
 
@@ -20,3 +22,35 @@ def test_the_expert_block_is_rendered_from_the_committed_json(script, suite):
 def test_markdown_of_a_missing_file_is_one_line_and_exit_2(tmp_path):
     r = markdown("bench_libero.py", tmp_path / "x.json")
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "x.json" in r.stderr
+
+
+def test_a_failure_shows_the_phase_the_expert_stopped_in(tmp_path):
+    task = {
+        "task": "libero_spatial/6",
+        "instruction": "pick up the bowl",
+        "successes": 1,
+        "n": 3,
+        "failed_init_states": [0, 2],
+        "failed_phases": [{"phase": "carry", "retries": 0}, {"phase": "lift", "retries": 2}],
+        "mean_length": 181.0,
+        "max_length": 181,
+    }
+    result = {
+        "machine": {"cpu_model": "cpu", "cores": 2, "load_avg_before": [0.5, 0.5, 0.5]},
+        "expert": "SpatialExpert",
+        "init_states": [0, 1, 2],
+        "suite": "libero_spatial",
+        "max_steps": 400,
+        "action_noise": 0.0,
+        "successes": 1,
+        "n": 3,
+        "tasks": {"t6": task},
+    }
+    path = tmp_path / "expert.json"
+    path.write_text(json.dumps(result))
+    out = markdown("bench_libero.py", path)
+    assert out.returncode == 0, out.stderr
+    assert (
+        "| libero_spatial/6 | pick up the bowl | 1/3 | 181 | 181 | 0 (carry), 2 (lift, 2 retries) |"
+        in out.stdout
+    )
