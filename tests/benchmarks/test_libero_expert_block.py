@@ -19,6 +19,21 @@ def test_the_expert_block_is_rendered_from_the_committed_json(script, suite):
     assert out.stdout.count(f"| {suite}/") == 10
 
 
+def test_the_task6_block_is_rendered_and_its_prose_names_the_states_the_cap_failed():
+    """Task 6 at 400 steps: the block is the JSON rendered, and the states docs/libero.md says succeed with the
+    longer cap are the 220-step run's failures that this run does not have."""
+    path = ROOT / "docs" / "benchmarks" / "libero_spatial_task6_expert.json"
+    out = markdown("bench_libero.py", path)
+    assert out.returncode == 0, out.stderr
+    page = (ROOT / "docs" / "libero.md").read_text()
+    assert f"<!-- libero-spatial-task6-expert:start -->\n{out.stdout}" in page
+    short = json.loads((ROOT / "docs" / "benchmarks" / "libero_spatial_expert.json").read_text())
+    [six] = [t for t in short["tasks"].values() if t["task"] == "libero_spatial/6"]
+    [long] = json.loads(path.read_text())["tasks"].values()
+    slow = sorted(set(six["failed_init_states"]) - set(long["failed_init_states"]))
+    assert slow and f"states {', '.join(map(str, slow))}:" in page
+
+
 def test_markdown_of_a_missing_file_is_one_line_and_exit_2(tmp_path):
     r = markdown("bench_libero.py", tmp_path / "x.json")
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "x.json" in r.stderr
