@@ -103,7 +103,7 @@ def expert_report(
                 lengths.append(step)
             else:
                 failed.append(k)
-                phases.append({"phase": expert.phase, "retries": getattr(expert, "_tries", 0)})
+                phases.append({"phase": expert.phase, "retries": expert.regrasps})
         tasks[env.task_names[t]] = {
             "task": f"{suite}/{t}",
             "instruction": env.instruction,

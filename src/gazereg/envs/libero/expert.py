@@ -176,6 +176,7 @@ class PickPlaceExpert:
         self._ori: Any = None  # () -> the gripper's orientation (3, 3); set by reset
         self.grasp_choice: dict[str, float] = {}
         self.plan: Plan | None = None  # this episode's, from reset
+        self._tries = 0
 
     # ----- episode --------------------------------------------------------------------------------------
     def reset(self, env: Any, noise_seed: Any = 0) -> None:
@@ -210,6 +211,11 @@ class PickPlaceExpert:
         self._hold = None
         self._offset_z = plan.hand_above
         self._tries = 0
+
+    @property
+    def regrasps(self) -> int:
+        """How often this episode's object was found dropped and the grasp started over (at most `retries`)."""
+        return self._tries
 
     def _plan(self, env: Any, pts: dict[str, np.ndarray], boxes: Any) -> Plan:
         raise NotImplementedError
