@@ -32,3 +32,14 @@ def test_an_object_held_where_it_was_grasped_is_not_a_drop():
     held = {"hand": np.array([0.0, 0.0, 0.10]), "obj": np.array([0.0, 0.0, 0.0])}
     ex._advance(False, held)
     assert ex.phase == "carry" and ex.regrasps == 0
+
+
+def test_the_goal_expert_reports_its_placers_regrasps():
+    from gazereg.envs.libero.expert_goal import GoalExpert
+
+    ex = GoalExpert()
+    assert ex.regrasps == 0  # no placement yet
+    placer = SpatialExpert()
+    placer._tries = 2
+    ex._placer = placer
+    assert ex.regrasps == 2

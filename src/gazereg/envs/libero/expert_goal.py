@@ -177,6 +177,11 @@ class GoalExpert(GoalPrimitives, PickPlaceExpert):
         first = self._waypoints[0].name if self._waypoints else None
         self.phase = first or self._placer.phase  # type: ignore[union-attr]
 
+    @property
+    def regrasps(self) -> int:
+        """The re-grasps of the placement under way (its placer's; none before a placement starts)."""
+        return 0 if self._placer is None else self._placer.regrasps
+
     def _is_open(self, env: Any, region: str) -> bool:
         return bool(env.unwrapped_libero.env.object_states_dict[region].is_open())
 
