@@ -19,18 +19,24 @@ def test_the_expert_block_is_rendered_from_the_committed_json(script, suite):
     assert out.stdout.count(f"| {suite}/") == 10
 
 
-def test_the_task6_block_is_rendered_and_its_prose_names_the_states_the_cap_failed():
-    """Task 6 at 400 steps: the block is the JSON rendered, and the states docs/libero.md says succeed with the
-    longer cap are the 220-step run's failures that this run does not have."""
-    path = ROOT / "docs" / "benchmarks" / "libero_spatial_task6_expert.json"
+@pytest.mark.parametrize(
+    "suite, task, longer",
+    [("libero_spatial", 6, "libero_spatial_task6_expert"), ("libero_goal", 3, "libero_goal_task3_expert")],
+)
+def test_a_weak_tasks_block_is_rendered_and_its_prose_names_the_states_the_cap_failed(suite, task, longer):
+    """One task at a longer cap: the block is the JSON rendered, and the states docs/libero.md says succeed
+    with the longer cap are the suite table's failures of that task that this run does not have."""
+    path = ROOT / "docs" / "benchmarks" / f"{longer}.json"
     out = markdown("bench_libero.py", path)
     assert out.returncode == 0, out.stderr
     page = (ROOT / "docs" / "libero.md").read_text()
-    assert f"<!-- libero-spatial-task6-expert:start -->\n{out.stdout}" in page
-    short = json.loads((ROOT / "docs" / "benchmarks" / "libero_spatial_expert.json").read_text())
-    [six] = [t for t in short["tasks"].values() if t["task"] == "libero_spatial/6"]
+    marker = f"{suite.replace('_', '-')}-task{task}-expert"
+    assert f"<!-- {marker}:start -->\n{out.stdout}<!-- {marker}:end -->" in page
+    short = json.loads((ROOT / "docs" / "benchmarks" / f"{suite}_expert.json").read_text())
+    [same] = [t for t in short["tasks"].values() if t["task"] == f"{suite}/{task}"]
     [long] = json.loads(path.read_text())["tasks"].values()
-    slow = sorted(set(six["failed_init_states"]) - set(long["failed_init_states"]))
+    assert long["task"] == same["task"] and long["n"] <= same["n"]
+    slow = sorted(set(same["failed_init_states"]) - set(long["failed_init_states"]))
     assert slow and f"states {', '.join(map(str, slow))}:" in page
 
 
