@@ -14,9 +14,9 @@ actions (arm still) on one task, excluding build and reset, plus physics-only st
 comparison, with the render copy's simplified meshes (LiberoEnv's default) and with the full meshes, and the
 time of a reset. `--expert-inits N` instead rolls the suite's scripted expert (`make_expert`: SpatialExpert,
 ObjectExpert, GoalExpert) out on initial states 0..N-1 of every task of `--suite` (physics only, no cameras:
-the expert reads object poses) and reports successes, failed initial states (each with the expert's phase and retries when it
-stopped: a failure in `carry` or later had the object in hand), episode lengths and wall time per task;
-`--tasks` only those of the suite's tasks.
+the expert reads object poses) and reports successes, failed initial states (each with the expert's phase and
+retries when it stopped: a failure in `carry` or later had the object in hand), episode lengths and wall time
+per task; `--tasks` only those of the suite's tasks.
 Prints one JSON object; `--out PATH` also writes it there (atomically), with the machine line.
 `--markdown JSON` measures nothing: it prints an expert JSON's table for docs (no LIBERO needed).
 """
@@ -75,18 +75,17 @@ def run(
 
 
 def expert_report(
-    suite: str, inits: int, noise: float, max_steps: int, task_ids: Sequence[int] | None = None
+    suite: str, task_ids: Sequence[int], inits: int, noise: float, max_steps: int
 ) -> dict[str, object]:
-    """The suite's expert (`make_expert`) on initial states 0..inits-1 of each of its tasks (or of `task_ids`)."""
+    """The suite's expert (`make_expert`) on initial states 0..inits-1 of each of its tasks `task_ids` (LIBERO
+    imported already: `import_libero`)."""
     from gazereg.envs.libero.collector import make_expert
     from gazereg.envs.libero.env import LiberoEnv
-    from gazereg.envs.libero.setup import import_libero, suite_benchmark
     from gazereg.envs.recording import noise_seed
 
-    import_libero(None)  # LIBERO's config, without its prompts
     tasks = {}
     t_all = time.perf_counter()
-    for t in range(len(suite_benchmark(suite).get_task_names())) if task_ids is None else task_ids:
+    for t in task_ids:
         env = LiberoEnv(f"{suite}/{t}", cameras=(), max_steps=max_steps)
         t0 = time.perf_counter()
         ok, lengths, failed, phases = 0, [], [], []
@@ -192,16 +191,16 @@ def main() -> int:
         from gazereg.envs.libero.collector import EXPERTS
         from gazereg.envs.libero.setup import import_libero, suite_benchmark
 
-        import_libero(None)
-
         if args.suite not in EXPERTS:
             ap.error(f"--suite {args.suite}: no scripted expert (experts: {', '.join(EXPERTS)})")
+        import_libero(None)  # LIBERO's config, without its prompts
         n_tasks = len(suite_benchmark(args.suite).get_task_names())
         if args.tasks is not None and not all(0 <= t < n_tasks for t in args.tasks):
             ap.error(f"--tasks {args.tasks}: {args.suite} has tasks 0..{n_tasks - 1}")
+        task_ids = range(n_tasks) if args.tasks is None else args.tasks
         machine = machine_info()  # before the run: its load average is the one the run started under
         report = expert_report(
-            args.suite, args.expert_inits, args.expert_noise, args.expert_max_steps, args.tasks
+            args.suite, task_ids, args.expert_inits, args.expert_noise, args.expert_max_steps
         )
         emit({"benchmark": "libero_expert", "machine": machine, **report}, args.out)
         return 0
