@@ -227,7 +227,8 @@ def test_sittings_are_pooled_into_one_row(spatial, tmp_path, load_script):
 PAGE_RUNS: dict[str, str] = {
     "libero_spatial": (
         "docs/records/libero-spatial-s0,docs/records/libero-spatial-s0-glc,"
-        "docs/records/libero-spatial-s1,docs/records/libero-spatial-s1-glc"
+        "docs/records/libero-spatial-s1,docs/records/libero-spatial-s1-glc,"
+        "docs/records/libero-spatial-s2,docs/records/libero-spatial-s2-glc"
     ),
 }
 """the archives docs/paper-benchmarks.md's block is rendered from (ROW: docs/records/NAME[,NAME...], as the
