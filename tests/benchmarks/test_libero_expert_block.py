@@ -1,4 +1,5 @@
-"""The four LIBERO suites' expert tables in docs/libero.md are what `bench_libero.py --markdown`
+"""The four LIBERO suites' expert tables on their docs pages (docs/libero.md for Spatial, docs/<suite>.md for
+the others) are what `bench_libero.py --markdown`
 renders from the committed JSON (their numbers come from the measurement, not typed); the markdown mode needs
 no LIBERO."""
 
@@ -15,7 +16,7 @@ def test_the_expert_block_is_rendered_from_the_committed_json(script, suite):
     out = markdown("bench_libero.py", ROOT / "docs" / "benchmarks" / f"{suite}_expert.json")
     assert out.returncode == 0, out.stderr
     marker = f"{suite.replace('_', '-')}-expert"
-    assert script.read_block(ROOT / "docs" / "libero.md", marker) == out.stdout
+    assert script.read_block(script.find_page(ROOT, marker), marker) == out.stdout
     assert out.stdout.count(f"| {suite}/") == 10
 
 
@@ -23,14 +24,14 @@ def test_the_expert_block_is_rendered_from_the_committed_json(script, suite):
     "suite, task, longer",
     [("libero_spatial", 6, "libero_spatial_task6_expert"), ("libero_goal", 3, "libero_goal_task3_expert")],
 )
-def test_a_weak_tasks_block_is_rendered_and_its_prose_names_the_states_the_cap_failed(suite, task, longer):
-    """One task at a longer cap: the block is the JSON rendered, and the states docs/libero.md says succeed
+def test_a_weak_tasks_block_is_rendered_and_its_prose_names_the_states_the_cap_failed(script, suite, task, longer):
+    """One task at a longer cap: the block is the JSON rendered, and the states its page says succeed
     with the longer cap are the suite table's failures of that task that this run does not have."""
     path = ROOT / "docs" / "benchmarks" / f"{longer}.json"
     out = markdown("bench_libero.py", path)
     assert out.returncode == 0, out.stderr
-    page = (ROOT / "docs" / "libero.md").read_text()
     marker = f"{suite.replace('_', '-')}-task{task}-expert"
+    page = script.find_page(ROOT, marker).read_text()
     assert f"<!-- {marker}:start -->\n{out.stdout}<!-- {marker}:end -->" in page
     short = json.loads((ROOT / "docs" / "benchmarks" / f"{suite}_expert.json").read_text())
     [same] = [t for t in short["tasks"].values() if t["task"] == f"{suite}/{task}"]

@@ -84,7 +84,7 @@ def libero_goal() -> ExperimentConfig:
     """LIBERO-Goal (`bash scripts/libero_env.sh gazereg experiment --preset libero_goal`): `libero_suite` over
     its 10 tasks, one kitchen scene with ten goals (the evaluation budget `libero-goal-25`, 300 steps),
     demonstrations by `GoalExpert` (its success per task, and the task it often fails:
-    docs/benchmarks/libero_goal_expert.json, docs/libero.md)."""
+    docs/benchmarks/libero_goal_expert.json, docs/libero-goal.md)."""
     return libero_suite("libero-goal-25", Path("runs/libero_goal"))
 
 
@@ -92,7 +92,7 @@ def libero_10() -> ExperimentConfig:
     """LIBERO-10 (`bash scripts/libero_env.sh gazereg experiment --preset libero_10`): `libero_suite` over its 10
     long-horizon tasks, goals of two or three conjuncts (the evaluation budget `libero-10-25`, 520 steps),
     demonstrations by `LongExpert` (its success per task, and the tasks it fails:
-    docs/benchmarks/libero_10_expert.json, docs/libero.md)."""
+    docs/benchmarks/libero_10_expert.json, docs/libero-10.md)."""
     return libero_suite("libero-10-25", Path("runs/libero_10"))
 
 

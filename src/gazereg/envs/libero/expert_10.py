@@ -48,7 +48,7 @@ and a hand holding the mug by its rim or handle cannot pass under the microwave'
 the roof instead). The cream cheese box fails when a tall neighbour (the milk carton) stands within the palm's
 length along its narrow side: the only free yaw takes the box across its wide side, which the open fingers
 barely span, and the descending fingers push it away. The measured success per task:
-docs/benchmarks/libero_10_expert.json, rendered in docs/libero.md.
+docs/benchmarks/libero_10_expert.json, rendered in docs/libero-10.md.
 """
 
 from __future__ import annotations

@@ -45,7 +45,7 @@ horizontal; the hand's side can touch what stands next to the handle (the plate 
 which does not change the drawer's goal.
 
 Success per task, measured with `benchmarks/bench_libero.py --suite libero_goal --expert-inits N`
-(docs/benchmarks/libero_goal_expert.json, rendered in docs/libero.md).
+(docs/benchmarks/libero_goal_expert.json, rendered in docs/libero-goal.md).
 """
 
 from __future__ import annotations
