@@ -24,7 +24,9 @@ def test_the_expert_block_is_rendered_from_the_committed_json(script, suite):
     "suite, task, longer",
     [("libero_spatial", 6, "libero_spatial_task6_expert"), ("libero_goal", 3, "libero_goal_task3_expert")],
 )
-def test_a_weak_tasks_block_is_rendered_and_its_prose_names_the_states_the_cap_failed(script, suite, task, longer):
+def test_a_weak_tasks_block_is_rendered_and_its_prose_names_the_states_the_cap_failed(
+    script, suite, task, longer
+):
     """One task at a longer cap: the block is the JSON rendered, and the states its page says succeed
     with the longer cap are the suite table's failures of that task that this run does not have."""
     path = ROOT / "docs" / "benchmarks" / f"{longer}.json"
