@@ -230,6 +230,7 @@ PAGE_RUNS: dict[str, str] = {
         "docs/records/libero-spatial-s1,docs/records/libero-spatial-s1-glc,"
         "docs/records/libero-spatial-s2,docs/records/libero-spatial-s2-glc"
     ),
+    "libero_object": "docs/records/libero-object-s0",
 }
 """the archives docs/paper-benchmarks.md's block is rendered from (ROW: docs/records/NAME[,NAME...], as the
 script's --run takes them)"""
