@@ -1,7 +1,6 @@
 """The four LIBERO suites' expert tables on their docs pages (docs/libero.md for Spatial, docs/<suite>.md for
-the others) are what `bench_libero.py --markdown`
-renders from the committed JSON (their numbers come from the measurement, not typed); the markdown mode needs
-no LIBERO."""
+the others) are what `bench_libero.py --markdown` renders from the committed JSON (their numbers come from the
+measurement, not typed); the markdown mode needs no LIBERO."""
 
 from __future__ import annotations
 
@@ -33,14 +32,14 @@ def test_a_weak_tasks_block_is_rendered_and_its_prose_names_the_states_the_cap_f
     out = markdown("bench_libero.py", path)
     assert out.returncode == 0, out.stderr
     marker = f"{suite.replace('_', '-')}-task{task}-expert"
-    page = script.find_page(ROOT, marker).read_text()
-    assert f"<!-- {marker}:start -->\n{out.stdout}<!-- {marker}:end -->" in page
+    page = script.find_page(ROOT, marker)
+    assert script.read_block(page, marker) == out.stdout
     short = json.loads((ROOT / "docs" / "benchmarks" / f"{suite}_expert.json").read_text())
     [same] = [t for t in short["tasks"].values() if t["task"] == f"{suite}/{task}"]
     [long] = json.loads(path.read_text())["tasks"].values()
     assert long["task"] == same["task"] and long["n"] <= same["n"]
     slow = sorted(set(same["failed_init_states"]) - set(long["failed_init_states"]))
-    assert slow and f"states {', '.join(map(str, slow))}:" in page
+    assert slow and f"states {', '.join(map(str, slow))}:" in page.read_text()
 
 
 def test_markdown_of_a_missing_file_is_one_line_and_exit_2(tmp_path):
