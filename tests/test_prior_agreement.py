@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from gazereg.data.store import EpisodeStore
+from gazereg.data.store import Episode, EpisodeStore
 
 
 @pytest.fixture(scope="module")
@@ -26,10 +26,9 @@ def test_peak_distance_is_chebyshev_on_the_grid_and_undefined_for_a_flat_map(agr
 
 def _store_with_priors(root, priors):
     """A store of one 4-frame episode with {name: (4, 16, 16) heatmaps} as priors."""
-    from tests.data.test_store import make_episode
-
     store = EpisodeStore(root, create=True)
-    store.write(make_episode(T=4))
+    zeros = np.zeros((4, 2), np.float32)
+    store.write(Episode("reach-v3", "reach", {"front": np.zeros((4, 8, 8, 3), np.uint8)}, zeros, zeros))
     for name, heat in priors.items():
         store.write_prior(name, 0, heat / heat.sum((1, 2), keepdims=True), np.ones(4, bool))
     return store
