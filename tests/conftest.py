@@ -3,6 +3,7 @@ import os
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from hypothesis import settings
@@ -41,6 +42,37 @@ def finished_experiment(tmp_path_factory):
 
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def _recorded_gaze_store(root, levels=(90, 91, 92), gaze=None, hw=(16, 16)):
+    """A new EpisodeStore at `root` with one episode per grey level: episode k has T = 5 + k flat frames of
+    that level (hw pixels, camera "cam", uint8), zero state and action (T, 2), task "t", and recorded gaze
+    `gaze_uv.cam` (T, 2) fixed at (u, v) = (0.25, 0.75) unless gaze[k] is False (then no gaze at all)."""
+    from gazereg.data.store import Episode, EpisodeStore
+
+    gaze = (True,) * len(levels) if gaze is None else gaze
+    store = EpisodeStore(root, create=True)
+    for k, (level, looked) in enumerate(zip(levels, gaze, strict=True)):
+        T = 5 + k
+        uv = np.tile(np.array([0.25, 0.75], np.float32), (T, 1))
+        store.write(
+            Episode(
+                task="t",
+                instruction="look",
+                frames={"cam": np.full((T, *hw, 3), level, np.uint8)},
+                state=np.zeros((T, 2), np.float32),
+                action=np.zeros((T, 2), np.float32),
+                extras={"gaze_uv.cam": uv} if looked else {},
+            )
+        )
+    return store
+
+
+@pytest.fixture(scope="session")
+def recorded_gaze_store():
+    """`recorded_gaze_store(root, levels=(90, 91, 92), gaze=None, hw=(16, 16))`: a small store whose episodes
+    carry recorded gaze, for the tests of the priors pipeline (`_recorded_gaze_store`)."""
+    return _recorded_gaze_store
 
 
 def _load_script(relative: str, name: str | None = None):

@@ -4,30 +4,17 @@ work counted as done) and demonstration collection. Training's: tests/training/t
 
 import re
 
-import numpy as np
 import pytest
 
 import gazereg.evaluation.rollout as ev
-from gazereg.data.store import Episode, EpisodeStore
 from gazereg.evaluation.config import EvalConfig
 from gazereg.gaze.priors import PriorsConfig, make_priors
 
 RATE = r"[0-9.]+ episodes/(s|min)"
 
 
-def test_priors_write_a_progress_line(tmp_path, capsys):
-    store = EpisodeStore(tmp_path / "s", create=True)
-    for _ in range(3):
-        store.write(
-            Episode(
-                task="t",
-                instruction="look",
-                frames={"cam": np.full((5, 16, 16, 3), 90, np.uint8)},
-                state=np.zeros((5, 2), np.float32),
-                action=np.zeros((5, 2), np.float32),
-                extras={"gaze_uv.cam": np.full((5, 2), 0.5, np.float32)},
-            )
-        )
+def test_priors_write_a_progress_line(tmp_path, capsys, recorded_gaze_store):
+    store = recorded_gaze_store(tmp_path / "s")
     make_priors(PriorsConfig(store=store.root, source="recorded", camera="cam", size=(8, 8)))
     line = rf"^priors recorded in {re.escape(str(store.root))}: 3/3 episodes \(100%\), {RATE}, took \d+ s$"
     assert re.search(line, capsys.readouterr().err, re.M)

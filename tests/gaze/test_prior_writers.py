@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 
 from gazereg.cli import main as gazereg_main
-from gazereg.data.store import Episode, EpisodeStore
 from gazereg.gaze.priors import LOCK_FILE, PriorsConfig, make_priors, writer_lock
 from gazereg.runtime.errors import UsageError
 
@@ -38,23 +37,6 @@ priors.aggregate = waiting
 from gazereg.cli import main
 raise SystemExit(main(["priors", *sys.argv[3:]]))
 """
-
-
-def make_store(root, n=3):
-    store = EpisodeStore(root, create=True)
-    for k in range(n):
-        T = 5 + k
-        store.write(
-            Episode(
-                task="t",
-                instruction="look",
-                frames={"cam": np.full((T, 16, 12, 3), 90 + k, np.uint8)},
-                state=np.zeros((T, 2), np.float32),
-                action=np.zeros((T, 2), np.float32),
-                extras={"gaze_uv.cam": np.tile(np.array([0.25, 0.75], np.float32), (T, 1))},
-            )
-        )
-    return store
 
 
 def argv(store, *more):
@@ -82,8 +64,8 @@ def files_settings(store, name):
     return {i: store.prior_settings(name, i) for i in store.prior_indices(name)}
 
 
-def test_a_second_run_while_one_writes_is_refused_naming_the_holder(tmp_path, capsys):
-    store = make_store(tmp_path / "s")
+def test_a_second_run_while_one_writes_is_refused_naming_the_holder(tmp_path, capsys, recorded_gaze_store):
+    store = recorded_gaze_store(tmp_path / "s", hw=(16, 12))
     first, go = start_blocking_run(store, tmp_path)  # defaults (aggregation past 2)
     try:
         status = gazereg_main(["priors", *argv(store, "--aggregation.past", "6")])
@@ -110,8 +92,8 @@ def test_a_second_run_while_one_writes_is_refused_naming_the_holder(tmp_path, ca
     ]  # the lock file goes with the run
 
 
-def test_a_killed_writer_releases_its_lock(tmp_path):
-    store = make_store(tmp_path / "s")
+def test_a_killed_writer_releases_its_lock(tmp_path, recorded_gaze_store):
+    store = recorded_gaze_store(tmp_path / "s", hw=(16, 12))
     first, _ = start_blocking_run(store, tmp_path)
     os.kill(first.pid, signal.SIGKILL)
     first.communicate(timeout=60)
@@ -120,8 +102,8 @@ def test_a_killed_writer_releases_its_lock(tmp_path):
     assert not (store.prior_dir("recorded") / LOCK_FILE).exists()
 
 
-def test_the_processes_of_one_sharded_run_share_the_lock_and_exclude_others(tmp_path):
-    store = make_store(tmp_path / "s")
+def test_the_processes_of_one_sharded_run_share_the_lock_and_exclude_others(tmp_path, recorded_gaze_store):
+    store = recorded_gaze_store(tmp_path / "s", hw=(16, 12))
     cfg = PriorsConfig(store=store.root, source="recorded", camera="cam", size=(8, 8))
     with writer_lock(store, "recorded", rank=0, world=2), writer_lock(store, "recorded", rank=1, world=2):
         with pytest.raises(UsageError, match="are being written by another `gazereg priors` run"):
@@ -134,10 +116,10 @@ def test_the_processes_of_one_sharded_run_share_the_lock_and_exclude_others(tmp_
     assert sorted(p.name for p in store.prior_dir("recorded").iterdir())[0] == "ep_000000.npz"
 
 
-def test_a_file_of_another_setting_is_refused_by_readers_and_reruns(tmp_path):
+def test_a_file_of_another_setting_is_refused_by_readers_and_reruns(tmp_path, recorded_gaze_store):
     """The lock aside (e.g. two machines on a network file system): a file written with other settings is
     found by its settings fingerprint."""
-    store = make_store(tmp_path / "s")
+    store = recorded_gaze_store(tmp_path / "s", hw=(16, 12))
     assert gazereg_main(["priors", *argv(store)]) == 0
     assert gazereg_main(["priors", *argv(store, "--aggregation.past", "6", "--name", "other")]) == 0
     mixed = store.prior_dir("recorded") / "ep_000001.npz"
@@ -165,8 +147,10 @@ def test_a_file_of_another_setting_is_refused_by_readers_and_reruns(tmp_path):
     assert set(files_settings(store, "recorded").values()) == {fp}
 
 
-def test_the_manifest_records_the_camera_frame_size_and_the_settings_fingerprint(tmp_path):
-    store = make_store(tmp_path / "s")
+def test_the_manifest_records_the_camera_frame_size_and_the_settings_fingerprint(
+    tmp_path, recorded_gaze_store
+):
+    store = recorded_gaze_store(tmp_path / "s", hw=(16, 12))
     make_priors(PriorsConfig(store=store.root, source="uniform", camera="cam", size=(8, 8)), progress=False)
     info = store.prior_info("uniform")
     assert info["camera"] == "cam" and info["image_hw"] == [16, 12] and info["size"] == [8, 8]
@@ -174,9 +158,9 @@ def test_the_manifest_records_the_camera_frame_size_and_the_settings_fingerprint
     assert set(files_settings(store, "uniform").values()) == {info["settings_fingerprint"]}
 
 
-def test_priors_made_before_fingerprints_still_read_and_rerun(tmp_path, caplog):
+def test_priors_made_before_fingerprints_still_read_and_rerun(tmp_path, caplog, recorded_gaze_store):
     """A manifest and files without the new keys (older priors) are read unchecked and a rerun is a no-op."""
-    store = make_store(tmp_path / "s")
+    store = recorded_gaze_store(tmp_path / "s", hw=(16, 12))
     for i in store.indices():
         T = store.meta(i)["length"]
         store.write_prior("old", i, np.full((T, 8, 8), 1 / 64, np.float32), np.ones(T, bool))

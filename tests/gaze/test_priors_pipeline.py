@@ -9,38 +9,18 @@ import numpy as np
 import pytest
 
 from gazereg.cli import main as gazereg_main
-from gazereg.data.store import Episode, EpisodeStore, MissingPriorError
+from gazereg.data.store import MissingPriorError
 from gazereg.gaze.priors import PriorsConfig, make_priors
 from gazereg.gaze.sources.perturbed import PerturbedParams
 from gazereg.runtime.errors import UsageError
-
-
-def square_episode(T=6, level=90, gaze=True):
-    frames = np.full((T, 16, 16, 3), level, np.uint8)
-    extras = {"gaze_uv.cam": np.tile(np.array([0.25, 0.75], np.float32), (T, 1))} if gaze else {}
-    return Episode(
-        task="t",
-        instruction="look",
-        frames={"cam": frames},
-        state=np.zeros((T, 2), np.float32),
-        action=np.zeros((T, 2), np.float32),
-        extras=extras,
-    )
-
-
-def make_store(root, levels=(90, 91, 92), gaze=(True, True, True)):
-    store = EpisodeStore(root, create=True)
-    for k, (level, g) in enumerate(zip(levels, gaze)):
-        store.write(square_episode(T=5 + k, level=level, gaze=g))
-    return store
 
 
 def cfg(store, **kw):
     return PriorsConfig(store=store.root, **{"source": "recorded", "camera": "cam", "size": (8, 8), **kw})
 
 
-def test_a_camera_the_store_lacks_leaves_nothing_and_the_rerun_works(tmp_path):
-    store = make_store(tmp_path / "s")
+def test_a_camera_the_store_lacks_leaves_nothing_and_the_rerun_works(tmp_path, recorded_gaze_store):
+    store = recorded_gaze_store(tmp_path / "s")
     with pytest.raises(
         UsageError, match="--camera 'wrist': episode 0 of store .* has no such camera; it has cam"
     ):
@@ -50,8 +30,8 @@ def test_a_camera_the_store_lacks_leaves_nothing_and_the_rerun_works(tmp_path):
     assert store.prior_info("recorded")["camera"] == "cam"
 
 
-def test_the_manifest_is_written_last(tmp_path):
-    store = make_store(tmp_path / "s", gaze=(True, True, False))  # episode 2 has no recorded gaze
+def test_the_manifest_is_written_last(tmp_path, recorded_gaze_store):
+    store = recorded_gaze_store(tmp_path / "s", gaze=(True, True, False))  # episode 2 has no recorded gaze
     with pytest.raises(UsageError, match="episode 2 has no recorded gaze 'gaze_uv.cam'"):
         make_priors(cfg(store), progress=False)
     assert store.prior_indices("recorded") == [0, 1] and store.prior_names() == []
@@ -65,16 +45,16 @@ def test_the_manifest_is_written_last(tmp_path):
     assert not (store.prior_dir("recorded") / "prior.pending.json").exists()
 
 
-def test_sharded_runs_write_the_manifest_when_every_episode_is_done(tmp_path):
-    store = make_store(tmp_path / "s")
+def test_sharded_runs_write_the_manifest_when_every_episode_is_done(tmp_path, recorded_gaze_store):
+    store = recorded_gaze_store(tmp_path / "s")
     make_priors(cfg(store, source="uniform"), rank=1, world=2, progress=False)
     assert store.prior_names() == []
     make_priors(cfg(store, source="uniform"), rank=0, world=2, progress=False)
     assert store.prior_names() == ["uniform"]
 
 
-def test_killed_writers_temporaries_are_swept(tmp_path):
-    store = make_store(tmp_path / "s")
+def test_killed_writers_temporaries_are_swept(tmp_path, recorded_gaze_store):
+    store = recorded_gaze_store(tmp_path / "s")
     folder = store.prior_dir("uniform")
     code = (
         "import os, sys\n"
@@ -93,8 +73,8 @@ def test_killed_writers_temporaries_are_swept(tmp_path):
     ]
 
 
-def test_a_rerun_over_priors_copied_from_another_store_is_refused(tmp_path):
-    a, b = make_store(tmp_path / "a"), make_store(tmp_path / "b", levels=(10, 11, 12))
+def test_a_rerun_over_priors_copied_from_another_store_is_refused(tmp_path, recorded_gaze_store):
+    a, b = recorded_gaze_store(tmp_path / "a"), recorded_gaze_store(tmp_path / "b", levels=(10, 11, 12))
     make_priors(cfg(a), progress=False)
     shutil.copytree(a.prior_dir("recorded"), b.prior_dir("recorded"))
     with pytest.raises(UsageError, match="was made from an episode with fingerprint .*another store"):
@@ -103,16 +83,16 @@ def test_a_rerun_over_priors_copied_from_another_store_is_refused(tmp_path):
     b.read_prior("recorded", 0)
 
 
-def test_a_missing_base_prior_is_refused_before_anything_is_written(tmp_path):
-    store = make_store(tmp_path / "s")
+def test_a_missing_base_prior_is_refused_before_anything_is_written(tmp_path, recorded_gaze_store):
+    store = recorded_gaze_store(tmp_path / "s")
     with pytest.raises(MissingPriorError, match="no priors named 'visuomotor'"):
         make_priors(cfg(store, source=PerturbedParams(mode="shuffle"), name="pert"), progress=False)
     assert not store.prior_dir("pert").exists()
 
 
-def test_priors_values_are_unchanged(tmp_path):
+def test_priors_values_are_unchanged(tmp_path, recorded_gaze_store):
     """The stored maps of a valid run are those of the uniform source (what the pipeline always wrote)."""
-    store = make_store(tmp_path / "s")
+    store = recorded_gaze_store(tmp_path / "s")
     make_priors(cfg(store, source="uniform"), progress=False)
     heat, valid = store.read_prior("uniform", 1)
     assert heat.shape == (6, 8, 8) and valid.all()
@@ -128,8 +108,8 @@ def test_priors_values_are_unchanged(tmp_path):
         (["--store", "MISSING"], "is not an episode store (no store.json)"),
     ],
 )
-def test_ordinary_mistakes_are_one_line_and_exit_2(tmp_path, capsys, args, message):
-    store = make_store(tmp_path / "s")
+def test_ordinary_mistakes_are_one_line_and_exit_2(tmp_path, capsys, args, message, recorded_gaze_store):
+    store = recorded_gaze_store(tmp_path / "s")
     argv = ["priors", "--store", str(store.root), "--source", "recorded", "--camera", "cam", "--no-overwrite"]
     argv += [a.replace("MISSING", str(tmp_path / "none")) for a in args]
     assert gazereg_main(argv) == 2
@@ -138,8 +118,8 @@ def test_ordinary_mistakes_are_one_line_and_exit_2(tmp_path, capsys, args, messa
     assert not store.prior_dir("recorded").exists()
 
 
-def test_the_module_entry_of_accelerate_launch_reports_one_line(tmp_path):
-    store = make_store(tmp_path / "s")
+def test_the_module_entry_of_accelerate_launch_reports_one_line(tmp_path, recorded_gaze_store):
+    store = recorded_gaze_store(tmp_path / "s")
     argv = ["--store", str(store.root), "--source", "uniform", "--camera", "wrist"]
     done = subprocess.run(
         [sys.executable, "-m", "gazereg.gaze.priors", *argv], capture_output=True, text=True
