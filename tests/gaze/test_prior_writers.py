@@ -39,6 +39,13 @@ raise SystemExit(main(["priors", *sys.argv[3:]]))
 """
 
 
+@pytest.fixture
+def store(tmp_path, recorded_gaze_store):
+    """Three episodes with recorded gaze (tests/conftest.py), frames 16 x 12: not square, so the manifest's
+    frame size shows its order."""
+    return recorded_gaze_store(tmp_path / "s", hw=(16, 12))
+
+
 def argv(store, *more):
     return ["--store", str(store.root), "--source", "recorded", "--camera", "cam", "--size", "8", "8", *more]
 
@@ -64,8 +71,7 @@ def files_settings(store, name):
     return {i: store.prior_settings(name, i) for i in store.prior_indices(name)}
 
 
-def test_a_second_run_while_one_writes_is_refused_naming_the_holder(tmp_path, capsys, recorded_gaze_store):
-    store = recorded_gaze_store(tmp_path / "s", hw=(16, 12))
+def test_a_second_run_while_one_writes_is_refused_naming_the_holder(tmp_path, capsys, store):
     first, go = start_blocking_run(store, tmp_path)  # defaults (aggregation past 2)
     try:
         status = gazereg_main(["priors", *argv(store, "--aggregation.past", "6")])
@@ -92,8 +98,7 @@ def test_a_second_run_while_one_writes_is_refused_naming_the_holder(tmp_path, ca
     ]  # the lock file goes with the run
 
 
-def test_a_killed_writer_releases_its_lock(tmp_path, recorded_gaze_store):
-    store = recorded_gaze_store(tmp_path / "s", hw=(16, 12))
+def test_a_killed_writer_releases_its_lock(tmp_path, store):
     first, _ = start_blocking_run(store, tmp_path)
     os.kill(first.pid, signal.SIGKILL)
     first.communicate(timeout=60)
@@ -102,8 +107,7 @@ def test_a_killed_writer_releases_its_lock(tmp_path, recorded_gaze_store):
     assert not (store.prior_dir("recorded") / LOCK_FILE).exists()
 
 
-def test_the_processes_of_one_sharded_run_share_the_lock_and_exclude_others(tmp_path, recorded_gaze_store):
-    store = recorded_gaze_store(tmp_path / "s", hw=(16, 12))
+def test_the_processes_of_one_sharded_run_share_the_lock_and_exclude_others(store):
     cfg = PriorsConfig(store=store.root, source="recorded", camera="cam", size=(8, 8))
     with writer_lock(store, "recorded", rank=0, world=2), writer_lock(store, "recorded", rank=1, world=2):
         with pytest.raises(UsageError, match="are being written by another `gazereg priors` run"):
@@ -116,10 +120,9 @@ def test_the_processes_of_one_sharded_run_share_the_lock_and_exclude_others(tmp_
     assert sorted(p.name for p in store.prior_dir("recorded").iterdir())[0] == "ep_000000.npz"
 
 
-def test_a_file_of_another_setting_is_refused_by_readers_and_reruns(tmp_path, recorded_gaze_store):
+def test_a_file_of_another_setting_is_refused_by_readers_and_reruns(store):
     """The lock aside (e.g. two machines on a network file system): a file written with other settings is
     found by its settings fingerprint."""
-    store = recorded_gaze_store(tmp_path / "s", hw=(16, 12))
     assert gazereg_main(["priors", *argv(store)]) == 0
     assert gazereg_main(["priors", *argv(store, "--aggregation.past", "6", "--name", "other")]) == 0
     mixed = store.prior_dir("recorded") / "ep_000001.npz"
@@ -147,10 +150,7 @@ def test_a_file_of_another_setting_is_refused_by_readers_and_reruns(tmp_path, re
     assert set(files_settings(store, "recorded").values()) == {fp}
 
 
-def test_the_manifest_records_the_camera_frame_size_and_the_settings_fingerprint(
-    tmp_path, recorded_gaze_store
-):
-    store = recorded_gaze_store(tmp_path / "s", hw=(16, 12))
+def test_the_manifest_records_the_camera_frame_size_and_the_settings_fingerprint(store):
     make_priors(PriorsConfig(store=store.root, source="uniform", camera="cam", size=(8, 8)), progress=False)
     info = store.prior_info("uniform")
     assert info["camera"] == "cam" and info["image_hw"] == [16, 12] and info["size"] == [8, 8]
@@ -158,9 +158,8 @@ def test_the_manifest_records_the_camera_frame_size_and_the_settings_fingerprint
     assert set(files_settings(store, "uniform").values()) == {info["settings_fingerprint"]}
 
 
-def test_priors_made_before_fingerprints_still_read_and_rerun(tmp_path, caplog, recorded_gaze_store):
+def test_priors_made_before_fingerprints_still_read_and_rerun(caplog, store):
     """A manifest and files without the new keys (older priors) are read unchecked and a rerun is a no-op."""
-    store = recorded_gaze_store(tmp_path / "s", hw=(16, 12))
     for i in store.indices():
         T = store.meta(i)["length"]
         store.write_prior("old", i, np.full((T, 8, 8), 1 / 64, np.float32), np.ones(T, bool))

@@ -15,12 +15,17 @@ from gazereg.gaze.sources.perturbed import PerturbedParams
 from gazereg.runtime.errors import UsageError
 
 
+@pytest.fixture
+def store(tmp_path, recorded_gaze_store):
+    """Three episodes with recorded gaze (tests/conftest.py)."""
+    return recorded_gaze_store(tmp_path / "s")
+
+
 def cfg(store, **kw):
     return PriorsConfig(store=store.root, **{"source": "recorded", "camera": "cam", "size": (8, 8), **kw})
 
 
-def test_a_camera_the_store_lacks_leaves_nothing_and_the_rerun_works(tmp_path, recorded_gaze_store):
-    store = recorded_gaze_store(tmp_path / "s")
+def test_a_camera_the_store_lacks_leaves_nothing_and_the_rerun_works(store):
     with pytest.raises(
         UsageError, match="--camera 'wrist': episode 0 of store .* has no such camera; it has cam"
     ):
@@ -45,16 +50,14 @@ def test_the_manifest_is_written_last(tmp_path, recorded_gaze_store):
     assert not (store.prior_dir("recorded") / "prior.pending.json").exists()
 
 
-def test_sharded_runs_write_the_manifest_when_every_episode_is_done(tmp_path, recorded_gaze_store):
-    store = recorded_gaze_store(tmp_path / "s")
+def test_sharded_runs_write_the_manifest_when_every_episode_is_done(store):
     make_priors(cfg(store, source="uniform"), rank=1, world=2, progress=False)
     assert store.prior_names() == []
     make_priors(cfg(store, source="uniform"), rank=0, world=2, progress=False)
     assert store.prior_names() == ["uniform"]
 
 
-def test_killed_writers_temporaries_are_swept(tmp_path, recorded_gaze_store):
-    store = recorded_gaze_store(tmp_path / "s")
+def test_killed_writers_temporaries_are_swept(store):
     folder = store.prior_dir("uniform")
     code = (
         "import os, sys\n"
@@ -83,16 +86,14 @@ def test_a_rerun_over_priors_copied_from_another_store_is_refused(tmp_path, reco
     b.read_prior("recorded", 0)
 
 
-def test_a_missing_base_prior_is_refused_before_anything_is_written(tmp_path, recorded_gaze_store):
-    store = recorded_gaze_store(tmp_path / "s")
+def test_a_missing_base_prior_is_refused_before_anything_is_written(store):
     with pytest.raises(MissingPriorError, match="no priors named 'visuomotor'"):
         make_priors(cfg(store, source=PerturbedParams(mode="shuffle"), name="pert"), progress=False)
     assert not store.prior_dir("pert").exists()
 
 
-def test_priors_values_are_unchanged(tmp_path, recorded_gaze_store):
+def test_priors_values_are_unchanged(store):
     """The stored maps of a valid run are those of the uniform source (what the pipeline always wrote)."""
-    store = recorded_gaze_store(tmp_path / "s")
     make_priors(cfg(store, source="uniform"), progress=False)
     heat, valid = store.read_prior("uniform", 1)
     assert heat.shape == (6, 8, 8) and valid.all()
@@ -108,8 +109,7 @@ def test_priors_values_are_unchanged(tmp_path, recorded_gaze_store):
         (["--store", "MISSING"], "is not an episode store (no store.json)"),
     ],
 )
-def test_ordinary_mistakes_are_one_line_and_exit_2(tmp_path, capsys, args, message, recorded_gaze_store):
-    store = recorded_gaze_store(tmp_path / "s")
+def test_ordinary_mistakes_are_one_line_and_exit_2(tmp_path, capsys, args, message, store):
     argv = ["priors", "--store", str(store.root), "--source", "recorded", "--camera", "cam", "--no-overwrite"]
     argv += [a.replace("MISSING", str(tmp_path / "none")) for a in args]
     assert gazereg_main(argv) == 2
@@ -118,8 +118,7 @@ def test_ordinary_mistakes_are_one_line_and_exit_2(tmp_path, capsys, args, messa
     assert not store.prior_dir("recorded").exists()
 
 
-def test_the_module_entry_of_accelerate_launch_reports_one_line(tmp_path, recorded_gaze_store):
-    store = recorded_gaze_store(tmp_path / "s")
+def test_the_module_entry_of_accelerate_launch_reports_one_line(store):
     argv = ["--store", str(store.root), "--source", "uniform", "--camera", "wrist"]
     done = subprocess.run(
         [sys.executable, "-m", "gazereg.gaze.priors", *argv], capture_output=True, text=True
