@@ -30,50 +30,37 @@ training seed); docs/tuning/photometric.md, the table of every candidate, is rea
 
 from __future__ import annotations
 
-import argparse
 import json
 import shlex
 import sys
-import time
 from pathlib import Path
 
 from gazereg.envs.libero.setup import SAMPLED_FROM
 from gazereg.experiment.config import PRESETS
 from gazereg.experiment.demos import HELDOUT_OFFSET
-from gazereg.experiment.finished import FinishedRun, stage_marker
 from gazereg.experiment.tuning import (
     Candidate,
-    archived_run,
-    candidate_archive,
-    candidate_record,
+    Protocol,
     choose,
-    experiment_command,
     markdown_table,
     per_task_text,
     rate_text,
-    run_experiment,
     totals,
     validation_successes,
-    write_record,
 )
-from gazereg.runtime.errors import UsageError
-from gazereg.runtime.io import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCS = ROOT / "docs" / "tuning"
-RECORDS = ROOT / "docs" / "records" / "tune-photometric"
-RUNS = "runs/tune-photometric"
 CONDITIONS = ("clean", "dim:0.7", "gaussian_noise:0.5")
 PLACEMENTS = ROOT / "docs" / "benchmarks" / "libero_spatial_placements_f741880.json"
 """`benchmarks/libero_placements.py` on the env the candidates ran on (f741880's): whose validation placements
 were scenes at rest (that env let LIBERO put the bowls that start on a fixture in mid-air; fixed since)"""
 HELDOUT_FROM = PRESETS["libero"]().eval.seed_start + HELDOUT_OFFSET
 """the `libero` preset's own held-out setups (fixed states the expert solves), not sampled placements"""
-BASE = [
+BASE = (
     "--preset", "libero", "--arms", "baseline", "--threads-per-run", "2",
     "--eval.seed-start", str(SAMPLED_FROM), "--eval.episodes", "10", "--eval.robustness-episodes", "5",
     "--heldout-seed-start", str(HELDOUT_FROM),
-]  # fmt: skip
+)  # fmt: skip
 
 
 def _jitter(s: str) -> Candidate:
@@ -83,48 +70,13 @@ def _jitter(s: str) -> Candidate:
     )
 
 
-CANDIDATES = (Candidate("p0", "the preset: no augmentation"), _jitter("0.25"), _jitter("0.5"))
-
-
-def command(cand: Candidate) -> list[str]:
-    return experiment_command(BASE, cand.overrides, f"{RUNS}/{cand.name}")
-
-
-def archive_path(name: str) -> Path:
-    return RECORDS / name
-
-
-def result_path(name: str) -> Path:
-    return DOCS / "photometric" / f"{name}.json"
-
-
-def finished(cand: Candidate) -> FinishedRun | None:
-    """The candidate's archive, checked to be its command's run; None when it has none."""
-    return candidate_archive(command(cand), archive_path(cand.name))
-
-
-def data_from(cand: Candidate) -> list[str]:
-    """`--data-from` the first candidate's folder when it has its demonstrations: the candidates differ only
-    in the training recipe, so they train on the same demonstrations, copied instead of collected again
-    (`gazereg.experiment.reuse`)."""
-    first = ROOT / RUNS / CANDIDATES[0].name
-    if cand != CANDIDATES[0] and stage_marker(first, "demos").exists():
-        return ["--data-from", f"{RUNS}/{CANDIDATES[0].name}"]
-    return []
-
-
-def run_candidate(cand: Candidate) -> Path:
-    """Run (or resume) `cand`'s experiment in runs/tune-photometric/<name>, archive it and write its record
-    from the archive; returns the record's path."""
-    t0 = time.time()
-    run_experiment([*command(cand), *data_from(cand)], ROOT)
-    run = archived_run(command(cand), ROOT, archive_path(cand.name))
-    record = {"archive": f"docs/records/tune-photometric/{cand.name}"}
-    record |= candidate_record(run, cand.name, cand.change, list(cand.overrides), command(cand))
-    record["validation_by_condition"] = {c: validation_successes(run.episodes(), (c,)) for c in CONDITIONS}
-    record["wall_time_s_this_call"] = round(time.time() - t0, 1)
-    write_record(result_path(cand.name), record)
-    return result_path(cand.name)
+PROTOCOL = Protocol(
+    "photometric",
+    ROOT,
+    BASE,
+    (Candidate("p0", "the preset: no augmentation"), _jitter("0.25"), _jitter("0.5")),
+    CONDITIONS,
+)
 
 
 def table() -> str:
@@ -141,8 +93,8 @@ def table() -> str:
     ]
     header = ("candidate", "change", *CONDITIONS, "all conditions", "clean per task")
     rows, scores, episodes = [], {}, {}
-    for cand in CANDIDATES:
-        run = finished(cand)
+    for cand in PROTOCOL.candidates:
+        run = PROTOCOL.finished(cand)
         if run is None:
             rows.append([cand.name, cand.change, "not run yet", *[""] * (len(CONDITIONS) + 1)])
             continue
@@ -160,12 +112,11 @@ def table() -> str:
         "Chosen (the most validation successes over the three conditions, ties to the earlier):",
         "",
     ]
-    if len(scores) < len(CANDIDATES):
-        lines.append(
-            "- not yet: " + ", ".join(c.name for c in CANDIDATES if c.name not in scores) + " to run"
-        )
+    if len(scores) < len(PROTOCOL.candidates):
+        todo = [c.name for c in PROTOCOL.candidates if c.name not in scores]
+        lines.append("- not yet: " + ", ".join(todo) + " to run")
     else:
-        best = next(c for c in CANDIDATES if c.name == choose(scores))
+        best = PROTOCOL.candidate(choose(scores))
         flags = shlex.join(best.overrides) or "the preset, no override"
         lines.append(f"- **{best.name}**, {best.change}: `{flags}` in every arm's recipe")
     return "\n".join(lines) + "\n"
@@ -202,28 +153,8 @@ def sound_table(episodes: dict[str, list[dict]]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--only", nargs="+", choices=[c.name for c in CANDIDATES], help="run (or resume) these")
-    p.add_argument("--table", action="store_true", help="only rewrite docs/tuning/photometric.md")
-    a = p.parse_args(argv)
-    try:
-        todo = (
-            []
-            if a.table
-            else [c for c in CANDIDATES if (c.name in a.only if a.only else finished(c) is None)]
-        )
-        for cand in todo:
-            print(f"candidate {cand.name}: {shlex.join(command(cand))}", flush=True)
-            run_candidate(cand)
-            atomic_write_text(DOCS / "photometric.md", table())
-        DOCS.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(DOCS / "photometric.md", table())
-    except UsageError as e:
-        print(f"{Path(__file__).name}: error: {e}", file=sys.stderr)
-        return 2
-    print(table())
-    return 0
+    return PROTOCOL.main(argv, table, (__doc__ or "").splitlines()[0])
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(main(sys.argv[1:]))

@@ -68,6 +68,33 @@ def _recorded_gaze_store(root, levels=(90, 91, 92), gaze=None, hw=(16, 16)):
     return store
 
 
+def _candidate_archive(dest, command, episodes):
+    """A tuning candidate's archive at `dest`: a real archive (docs/records/paper-abl-b) whose configuration is
+    the one the `gazereg experiment` command line `command` builds and whose evaluation records are
+    `episodes`; returns `dest`."""
+    import gzip
+    import json
+    import shutil
+
+    from gazereg.experiment.tuning import built_config
+    from gazereg.runtime.config import to_dict
+
+    shutil.copytree(ROOT / "docs" / "records" / "paper-abl-b", dest)
+    (dest / "config.json").write_text(
+        json.dumps(to_dict(built_config(tuple(command))), indent=2, sort_keys=True)
+    )
+    path = dest / "eval" / "eval_info.json.gz"
+    path.write_bytes(gzip.compress(json.dumps({"episodes": episodes}).encode()))
+    return dest
+
+
+@pytest.fixture(scope="session")
+def candidate_archive():
+    """`candidate_archive(dest, command, episodes)`: a tuning candidate's archive made here
+    (`_candidate_archive`), for the tests of the tuning scripts."""
+    return _candidate_archive
+
+
 @pytest.fixture(scope="session")
 def recorded_gaze_store():
     """`recorded_gaze_store(root, levels=(90, 91, 92), gaze=None, hw=(16, 16))`: a small store whose episodes

@@ -31,6 +31,8 @@ class CountdownEnv:
         self.steps_taken += 1
         self.left -= 1
         info = {"success": bool(action[0] > 0), "obj_to_target": float(self.left)}
+        if self.seed == 1003:  # a staged reward (Gym-Aloha's): up to 2, then back to 1 by the end
+            info["reward"] = float(min(self.steps_taken, 2) if self.left else 1)
         return self.obs(), 0.0, self.left == 0, False, info
 
     def close(self):
@@ -71,6 +73,7 @@ def test_a_finished_episode_waits_while_the_others_go_on():
     assert [r["success"] for r in records] == [True, False, False]
     assert [r["final_distance"] for r in records] == [0.0, 0.0, 0.0]
     assert [r["min_distance"] for r in records] == [0.0, 0.0, 0.0]
+    assert [r.get("max_reward") for r in records] == [None, None, 2.0]  # the highest, not the last
     assert w.policy_.calls == [3] * 5  # one call per step for the batch, until the longest episode ends
     assert [w.envs.get(("t", ("cam",), (4, 4), k)).steps_taken for k in range(3)] == [2, 3, 5]
     alone = make_worker(1)

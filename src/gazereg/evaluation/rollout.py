@@ -91,11 +91,17 @@ class Episode:
     length: int = 0
     done: bool = False
     video: str | None = None
+    max_reward: float | None = None
+    """the highest reward the simulator reported (a staged task reward: Gym-Aloha's 0..4); None when its info
+    has no `reward`"""
 
     def record(self, step: int, info: dict[str, Any], ended: bool) -> None:
         self.success = self.success or bool(info["success"])
         if "obj_to_target" in info:
             self.distances.append(float(info["obj_to_target"]))
+        if "reward" in info:
+            r = float(info["reward"])
+            self.max_reward = r if self.max_reward is None else max(r, self.max_reward)
         self.length, self.done = step, ended
 
     def result(self) -> dict[str, Any]:
@@ -105,6 +111,8 @@ class Episode:
         if self.distances:  # the simulator's progress measure (Meta-World: object, or hand, to target; m)
             out["min_distance"] = min(self.distances)
             out["final_distance"] = self.distances[-1]
+        if self.max_reward is not None:  # how far a failed episode got (Gym-Aloha: 1 touch ... 4 success)
+            out["max_reward"] = self.max_reward
         if self.video:
             out["video"] = self.video
         return out
@@ -125,7 +133,8 @@ class RolloutWorker:
     kept for two tasks at a time: jobs alternate between tasks).
 
     A job's record: arm, task, condition, seed, success, length (steps) and, where the simulator measures it,
-    min_distance and final_distance (metres, object or hand to target), video (the GIF's path) if filmed."""
+    min_distance and final_distance (metres, object or hand to target) and max_reward (the highest staged
+    reward of the episode), video (the GIF's path) if filmed."""
 
     def __init__(self, max_steps: int, gl_backend: str | None, env: str = "metaworld", batch: int = 1):
         torch.set_num_threads(1)

@@ -12,23 +12,31 @@ over the conditions a protocol names).
     choose({"default": 37, "lr1e-4": 45})                               # "lr1e-4"
 
 The choice rule of every script (`choose`): the most validation successes, ties to the earlier candidate.
+A protocol whose candidates are archived (`Protocol`: tune_photometric.py, tune_aloha.py) is one value, its
+script a table and a `main`:
+
+    PROTOCOL = Protocol("aloha", ROOT, BASE, (Candidate("default", "the preset"), ...))
+    PROTOCOL.run(PROTOCOL.candidate("default"))   # run or resume, archive, record: docs/tuning/aloha/default.json
+    PROTOCOL.main(argv, table, "...")             # the script's command line (--only, --table)
 """
 
 from __future__ import annotations
 
+import argparse
 import functools
 import json
 import shlex
 import subprocess
 import sys
-from collections.abc import Mapping, Sequence
+import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from gazereg.experiment.archive import archive
 from gazereg.experiment.config import DEFAULT_PRESET, EXECUTION_KEYS, PRESETS, ExperimentConfig
-from gazereg.experiment.finished import FinishedRun, Record, read_run
+from gazereg.experiment.finished import FinishedRun, Record, read_run, stage_marker
 from gazereg.experiment.records import as_saved_now
 from gazereg.report.ids import RunId
 from gazereg.runtime.config import check_same_config, parse
@@ -140,9 +148,10 @@ def per_seed_text(val: Validation) -> str:
     return ", ".join(f"s{s} {sum(val[t][s][0] for t in val)}" for s in seeds)
 
 
-def choose(successes: Mapping[str, int]) -> str:
+def choose(successes: Mapping[str, int] | Mapping[str, tuple[float, ...]]) -> str:
     """The candidate with the most validation successes in `successes` ({name: successes}, in the
-    protocol's order); ties go to the earlier one. ValueError when it is empty."""
+    protocol's order; or {name: (successes, tie-breakers...)}, compared in that order); ties go to the
+    earlier one. ValueError when it is empty."""
     if not successes:
         raise ValueError("no candidate to choose from")
     names = list(successes)
@@ -181,3 +190,89 @@ def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list
     """The lines of a markdown table of `rows` under `header`."""
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     return lines + ["| " + " | ".join(row) + " |" for row in rows]
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """A tuning protocol whose candidates are archived `gazereg experiment` runs (scripts/tune_photometric.py,
+    tune_aloha.py): candidate `c` runs in `root`/runs/tune-<name>/<c> (the shared options `base`, then its
+    overrides), is archived to docs/records/tune-<name>/<c> and recorded in docs/tuning/<name>/<c>.json; the
+    protocol's table is docs/tuning/<name>.md. `conditions`: those its score pools (`validation_successes`)."""
+
+    name: str
+    root: Path
+    base: tuple[str, ...]
+    candidates: tuple[Candidate, ...]
+    conditions: tuple[str, ...] = ("clean",)
+
+    def candidate(self, name: str) -> Candidate:
+        return next(c for c in self.candidates if c.name == name)
+
+    def command(self, cand: Candidate) -> list[str]:
+        """The candidate's `gazereg experiment` command line (its output folder relative to `root`)."""
+        return experiment_command(self.base, cand.overrides, f"runs/tune-{self.name}/{cand.name}")
+
+    def archive_path(self, name: str) -> Path:
+        return self.root / "docs" / "records" / f"tune-{self.name}" / name
+
+    def result_path(self, name: str) -> Path:
+        return self.root / "docs" / "tuning" / self.name / f"{name}.json"
+
+    @property
+    def table_path(self) -> Path:
+        return self.root / "docs" / "tuning" / f"{self.name}.md"
+
+    def finished(self, cand: Candidate) -> FinishedRun | None:
+        """The candidate's archive, checked to be its command's run; None when it has none."""
+        return candidate_archive(self.command(cand), self.archive_path(cand.name))
+
+    def data_from(self, cand: Candidate) -> list[str]:
+        """`--data-from` the first candidate's folder when it has its demonstrations: the candidates differ
+        only in the training recipe, so they train on the same demonstrations, copied instead of collected
+        again (`gazereg.experiment.reuse`)."""
+        first = self.command(self.candidates[0])[-1]
+        if cand != self.candidates[0] and stage_marker(self.root / first, "demos").exists():
+            return ["--data-from", first]
+        return []
+
+    def run(self, cand: Candidate) -> FinishedRun:
+        """Run (or resume) the candidate's experiment, archive it and write its record (`candidate_record`
+        with its archive, wall time of this call and validation successes per condition) from the archive;
+        the archived run."""
+        t0 = time.time()
+        run_experiment([*self.command(cand), *self.data_from(cand)], self.root)
+        run = archived_run(self.command(cand), self.root, self.archive_path(cand.name))
+        record = {"archive": self.archive_path(cand.name).relative_to(self.root).as_posix()}
+        record |= candidate_record(run, cand.name, cand.change, list(cand.overrides), self.command(cand))
+        record["validation_by_condition"] = {
+            c: validation_successes(run.episodes(), (c,)) for c in self.conditions
+        }
+        record["wall_time_s_this_call"] = round(time.time() - t0, 1)
+        write_record(self.result_path(cand.name), record)
+        return run
+
+    def main(self, argv: Sequence[str] | None, table: Callable[[], str], description: str) -> int:
+        """A protocol script's command line: run (or resume) every candidate not archived yet (`--only`:
+        these), rewriting the table after each; `--table`: only the table. Exit status 2 and one line for
+        an archive of another command."""
+        p = argparse.ArgumentParser(description=description)
+        names = [c.name for c in self.candidates]
+        p.add_argument("--only", nargs="+", choices=names, help="run (or resume) these")
+        p.add_argument("--table", action="store_true", help=f"only rewrite docs/tuning/{self.name}.md")
+        a = p.parse_args(argv)
+        try:
+            todo = [] if a.table else [c for c in self.candidates if self._todo(c, a.only)]
+            for cand in todo:
+                print(f"candidate {cand.name}: {shlex.join(self.command(cand))}", flush=True)
+                self.run(cand)
+                atomic_write_text(self.table_path, table())
+            self.table_path.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(self.table_path, table())
+        except UsageError as e:
+            print(f"{p.prog}: error: {e}", file=sys.stderr)
+            return 2
+        print(table())
+        return 0
+
+    def _todo(self, cand: Candidate, only: Sequence[str] | None) -> bool:
+        return cand.name in only if only else self.finished(cand) is None
