@@ -39,7 +39,7 @@ def test_every_part_names_an_experiment_preset_and_every_arm_is_in_one_sitting_p
             cfg = built_config(("gazereg", "experiment", "--preset", part.preset))
             groups = schedule.arm_groups(part)
             assert [a for g in groups for a in g] == list(cfg.arms)
-            assert all(len(g) <= max(1, cfg.parallel) for g in groups)
+            assert all(len(g) <= max(1, part.group or cfg.parallel) for g in groups)
         per_part = {part: [s for s in schedule.sittings() if s.part == part] for part in schedule.parts}
         for part, runs in per_part.items():  # every group at every seed, once
             groups = schedule.arm_groups(part)
@@ -85,6 +85,20 @@ def test_a_libero_suite_runs_its_table_arms_seed_by_seed_and_the_shuffled_gaze_a
     ]  # fmt: skip
     cfg = built_config(tuple(alone))
     assert cfg.threads_per_run == 2 and cfg.arms == ("perturbed",)
+
+
+def test_libero_10_runs_one_arm_a_sitting_on_both_threads_the_table_arms_seed_by_seed():
+    """A pair of LIBERO-10's arms would not finish in one session (520-step evaluations), so its part sits one
+    arm at a time, on both cores' threads, the four table arms at each seed before the shuffled gaze."""
+    long = sittings.SCHEDULES["libero-10"]
+    table = ("", "-gaze", "-glc", "-uniform")
+    names = [s.name for s in long.sittings()]
+    assert names == [f"libero-10-s{x}{a}" for x in (0, 1, 2) for a in table] + [
+        f"libero-10-s{x}-perturbed" for x in (0, 1, 2)
+    ]
+    for s in long.sittings():
+        cfg = built_config(tuple(s.command()))
+        assert len(s.arms) == 1 and cfg.arms == s.arms and cfg.threads_per_run == 2
 
 
 def test_a_sittings_command_is_its_arms_at_its_seed_with_the_first_sittings_data_when_here(tmp_path):

@@ -11,7 +11,7 @@ sitting archived (`gazereg archive`) so that its rows recompute from its episode
 A schedule (`SCHEDULES`, by name) is one or more experiment presets ("parts", each with its own name) at some
 training seeds. A sitting is one group of arms of one part at one seed: the preset's arms in groups of its
 `parallel` (the arms that train side by side, one thread each on 2 cores), so a sitting trains only as long
-as one arm does. The first group's sitting is named `<part>-s<seed>`, the others `<part>-s<seed>-<first arm>`
+as one arm does, or of the part's `group` (LIBERO-10: one arm a sitting, on both threads). The first group's sitting is named `<part>-s<seed>`, the others `<part>-s<seed>-<first arm>`
 (`study10-s0`, `study10-s0-glc`). Order: seed by seed, and within a seed part by part, so a schedule stopped
 anywhere has its parts at (nearly) the same seeds; a part's follow-up groups (`Part.core`: the groups after its
 first `core`) come after every seed's core groups, seed by seed again: controls that are worth their
@@ -114,11 +114,13 @@ demonstrations (the pretraining's, from its demos stage) with their visuomotor g
 class Part:
     """One experiment preset of a schedule: `name` prefixes its sittings and names its pool (runs/<name>);
     `core`: how many of its arm groups run seed by seed first (None: all), the rest afterwards (module
-    docstring)."""
+    docstring); `group`: arms per sitting (None: the preset's `parallel`; fewer when a sitting of `parallel`
+    arms would not fit one session: the group's runs then share the preset's threads)."""
 
     name: str
     preset: str
     core: int | None = None
+    group: int | None = None
 
 
 @dataclass(frozen=True)
@@ -160,9 +162,10 @@ class Schedule:
     doc: str = ""
 
     def arm_groups(self, part: Part) -> list[tuple[str, ...]]:
-        """The part's preset's arms in groups of its `parallel`, in order."""
+        """The part's preset's arms in groups of the part's `group` (default: the preset's `parallel`), in
+        order."""
         cfg = _preset(part)
-        size = max(1, cfg.parallel)
+        size = max(1, part.group or cfg.parallel)
         return [tuple(cfg.arms[i : i + size]) for i in range(0, len(cfg.arms), size)]
 
     def sitting(self, part: Part, seed: int, index: int, arms: tuple[str, ...]) -> Sitting:
@@ -202,7 +205,9 @@ SCHEDULES: dict[str, Schedule] = {
     "libero-spatial": Schedule((Part("libero-spatial", "libero", core=2),), doc="LIBERO-Spatial, 3 seeds"),
     "libero-object": Schedule((Part("libero-object", "libero_object", core=2),), doc="LIBERO-Object"),
     "libero-goal": Schedule((Part("libero-goal", "libero_goal", core=2),), doc="LIBERO-Goal"),
-    "libero-10": Schedule((Part("libero-10", "libero_10", core=2),), doc="LIBERO-10 (long-horizon)"),
+    "libero-10": Schedule(  # one arm a sitting: a pair of arms' 520-step evaluations would outlast a session
+        (Part("libero-10", "libero_10", core=4, group=1),), doc="LIBERO-10 (long-horizon), one arm a sitting"
+    ),
     "aloha": Schedule((Part("aloha", "aloha"),), doc="Gym-Aloha's transfer cube and insertion"),
 }
 """every schedule by name (`gazereg sittings NAME`); each part's preset is one of gazereg.experiment.config's"""
