@@ -33,7 +33,6 @@ of every candidate, is read from the archives.
 
 from __future__ import annotations
 
-import shlex
 import sys
 from pathlib import Path
 
@@ -41,7 +40,6 @@ from gazereg.experiment.finished import Record
 from gazereg.experiment.tuning import (
     Candidate,
     Protocol,
-    choose,
     markdown_table,
     per_task_text,
     rate_text,
@@ -132,18 +130,9 @@ def table() -> str:
             ]
         )
     lines += markdown_table(header, rows)
-    lines += [
-        "",
-        "Chosen (the most validation successes, then the larger summed highest reward, then the earlier):",
-        "",
-    ]
-    if len(scores) < len(PROTOCOL.candidates):
-        todo = [c.name for c in PROTOCOL.candidates if c.name not in scores]
-        lines.append("- not yet: " + ", ".join(todo) + " to run")
-    else:
-        best = PROTOCOL.candidate(choose(scores))
-        flags = shlex.join(best.overrides) or "the preset, no override"
-        lines.append(f"- **{best.name}**, {best.change}: `{flags}` in every arm's recipe")
+    lines += PROTOCOL.choice(
+        scores, "the most validation successes, then the larger summed highest reward, then the earlier"
+    )
     return "\n".join(lines) + "\n"
 
 

@@ -31,7 +31,6 @@ training seed); docs/tuning/photometric.md, the table of every candidate, is rea
 from __future__ import annotations
 
 import json
-import shlex
 import sys
 from pathlib import Path
 
@@ -41,7 +40,6 @@ from gazereg.experiment.demos import HELDOUT_OFFSET
 from gazereg.experiment.tuning import (
     Candidate,
     Protocol,
-    choose,
     markdown_table,
     per_task_text,
     rate_text,
@@ -107,18 +105,9 @@ def table() -> str:
         )
     lines += markdown_table(header, rows)
     lines += sound_table(episodes)
-    lines += [
-        "",
-        "Chosen (the most validation successes over the three conditions, ties to the earlier):",
-        "",
-    ]
-    if len(scores) < len(PROTOCOL.candidates):
-        todo = [c.name for c in PROTOCOL.candidates if c.name not in scores]
-        lines.append("- not yet: " + ", ".join(todo) + " to run")
-    else:
-        best = PROTOCOL.candidate(choose(scores))
-        flags = shlex.join(best.overrides) or "the preset, no override"
-        lines.append(f"- **{best.name}**, {best.change}: `{flags}` in every arm's recipe")
+    lines += PROTOCOL.choice(
+        scores, "the most validation successes over the three conditions, ties to the earlier"
+    )
     return "\n".join(lines) + "\n"
 
 

@@ -251,6 +251,18 @@ class Protocol:
         write_record(self.result_path(cand.name), record)
         return run
 
+    def choice(self, scores: Mapping[str, int] | Mapping[str, tuple[float, ...]], rule: str) -> list[str]:
+        """The lines of a table's choice under the protocol's `rule` (prose): the chosen candidate (`choose`
+        over `scores`, {name: score} of the candidates finished so far) and its flags, or the candidates still
+        to run."""
+        lines = ["", f"Chosen ({rule}):", ""]
+        if len(scores) < len(self.candidates):
+            todo = [c.name for c in self.candidates if c.name not in scores]
+            return [*lines, "- not yet: " + ", ".join(todo) + " to run"]
+        best = self.candidate(choose(scores))
+        flags = shlex.join(best.overrides) or "the preset, no override"
+        return [*lines, f"- **{best.name}**, {best.change}: `{flags}` in every arm's recipe"]
+
     def main(self, argv: Sequence[str] | None, table: Callable[[], str], description: str) -> int:
         """A protocol script's command line: run (or resume) every candidate not archived yet (`--only`:
         these), rewriting the table after each; `--table`: only the table. Exit status 2 and one line for
