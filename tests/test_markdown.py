@@ -200,3 +200,14 @@ def test_the_per_task_table_carries_each_tasks_instruction(report):
     lines = per_task_lines(report)
     assert lines[2].startswith("| task | instruction |")
     assert any(line.startswith("| reach-v3 | Reach the goal. |") for line in lines)
+
+
+def test_a_one_seed_block_shows_how_far_episodes_got_where_the_simulator_stages_its_reward(report):
+    """A staged reward (Gym-Aloha) gets its table in every block, one seed included; without one, nothing."""
+    assert "Furthest stage" not in results_block(report, "figures/f.png")
+    cell = {"mean": 1.5, "ci95": [1.0, 2.0], "n": 50}
+    report["stage"] = {"table": {arm: {"clean": cell} for arm in report["success"]}, "paired": {}}
+    block = results_block(report, "figures/f.png")
+    assert "\n## Furthest stage reached (the task's staged reward; higher is better)\n" in block
+    assert "| baseline | 1.50 [1.00, 2.00] |" in block
+    assert block.index("Furthest stage") < block.index(report["verdict"][0])

@@ -18,6 +18,7 @@ from gazereg.report import (
     verdict,
 )
 from gazereg.report.comparisons import paired_lines
+from gazereg.report.progress import measure_lines, stage_section
 
 
 def records(arm, successes, condition="clean", task="reach-v3", start=1000):
@@ -262,3 +263,22 @@ def test_paired_comparison_names_are_written_and_read_in_one_place():
     assert split_paired_name(name) == ("gaze", "baseline", "dim:0.7")
     with pytest.raises(ValueError, match="not a paired comparison's name"):
         split_paired_name("gaze | clean")
+
+
+def test_a_staged_reward_is_a_progress_section_of_its_own_only_where_recorded():
+    """Gym-Aloha's episodes carry the highest staged reward (max_reward); the report then holds a `stage`
+    section (per arm, and each arm against the baseline, paired by setup), and none for records without it."""
+    recs = records("baseline@s0", [0] * 6) + records("gaze@s0", [0] * 5 + [1])
+    assert stage_section(recs, {}) == {}
+    for r in recs:
+        r["max_reward"] = 4.0 if r["success"] else (2.0 if r["arm"].startswith("gaze") else 1.0)
+    stage = stage_section(recs, {"uniform": []})["stage"]
+    assert stage["table"]["baseline"]["clean"]["mean"] == pytest.approx(1.0)
+    assert stage["table"]["gaze"]["clean"]["mean"] == pytest.approx((5 * 2.0 + 4.0) / 6)
+    paired = stage["paired"]["gaze vs baseline | clean"]
+    assert (
+        paired["n"] == 6 and paired["mean_diff"] == pytest.approx(14 / 6 - 1.0) and paired["p_value"] < 0.05
+    )
+    lines = measure_lines({"stage": stage}, ["clean"], "stage")
+    assert lines[1] == "## Furthest stage reached (the task's staged reward; higher is better)"
+    assert "| gaze | 2.33 [" in "\n".join(lines) and measure_lines({}, ["clean"], "stage") == []

@@ -7,10 +7,10 @@ from gazereg.report.convergence import ConvergencePoint, checkpoint_tally, conve
 from gazereg.report.figures import plot_attention, plot_convergence, plot_success
 from gazereg.report.ids import RunId
 from gazereg.report.markdown import (
-    distance_lines,
     fmt_cell,
     headline_lines,
     markdown,
+    measure_lines,
     results_block,
 )
 from gazereg.report.tables import (
@@ -37,11 +37,11 @@ __all__ = [
     "checkpoint_tally",
     "convergence",
     "convergence_report",
-    "distance_lines",
     "distance_table",
     "distance_value",
     "fmt_cell",
     "headline_lines",
+    "measure_lines",
     "machine_summary",
     "markdown",
     "overlap",

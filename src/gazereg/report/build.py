@@ -20,6 +20,7 @@ from gazereg.report.convergence import ConvergencePoint, convergence_report
 from gazereg.report.figures import plot_convergence, plot_success
 from gazereg.report.ids import RunId
 from gazereg.report.markdown import markdown
+from gazereg.report.progress import stage_section
 from gazereg.report.tables import (
     distance_table,
     distance_value,
@@ -44,7 +45,7 @@ degree of freedom and the sign-flip test's smallest p is 0.5: the per-task table
 
 Record = dict[str, Any]
 """one evaluation episode as `evaluation.rollout` writes it: arm (a `RunId`'s text), task, condition, seed
-(the setup), success, and min_distance / video where recorded"""
+(the setup), success, and min_distance / max_reward / video where recorded"""
 
 
 @dataclass(frozen=True)
@@ -152,6 +153,7 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
             "paired": distance,
             "seed_level": distance_seeds or None,
         },
+        **stage_section(episodes, controls),
         "verdict": verdicts,
         "convergence": conv,
         "glc": outputs.glc,

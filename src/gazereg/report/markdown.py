@@ -14,8 +14,9 @@ from pathlib import Path
 from typing import Any
 
 from gazereg.report.blockdata import BlockData
-from gazereg.report.comparisons import comparison_lines, paired_lines, unit_level_lines, unit_level_table
+from gazereg.report.comparisons import paired_lines, unit_level_lines
 from gazereg.report.ids import RunId
+from gazereg.report.progress import measure_lines
 from gazereg.report.sections import glc_lines, header_lines, numerics_text
 
 # attention-vs-gaze metrics shown, in this column order: report.md shows them all, the results block a subset
@@ -194,46 +195,6 @@ def convergence_lines(report: dict[str, Any]) -> list[str]:
     return [*lines, "", *bootstrap_lines(conv)]
 
 
-def distance_lines(report: dict[str, Any], conds: list[str]) -> list[str]:
-    """The closest-approach table and its paired comparisons, when the report has them."""
-    dist = report.get("distance")
-    if not dist or not dist.get("table"):
-        return []
-    table = dist["table"]
-    lines = [
-        "",
-        "## Closest approach to the target (metres; lower is better)",
-        "",
-        "Per episode, the smallest distance of the object (the hand, for reach) to its target that the "
-        "simulator measured: a continuous outcome that moves before success does. Mean [95% interval]:",
-        "",
-        "| arm | " + " | ".join(conds) + " |",
-        "|---|" + "---|" * len(conds),
-    ]
-    for a, row in table.items():
-        cells = [
-            f"{row[c]['mean']:.4f} [{row[c]['ci95'][0]:.4f}, {row[c]['ci95'][1]:.4f}]" if c in row else "-"
-            for c in conds
-        ]
-        lines.append(f"| {a} | " + " | ".join(cells) + " |")
-    if dist.get("paired"):
-        lines.append("")
-        lines += comparison_lines(
-            dist["paired"],
-            ["pairs", "mean difference [95% interval]", "permutation p"],
-            lambda a, b, v: [
-                str(v["n"]),
-                f"{v['mean_diff']:+.4f} [{v['ci95'][0]:+.4f}, {v['ci95'][1]:+.4f}]",
-                f"{v['p_value']:.4f}",
-            ],
-            label="comparison",
-        )
-    if dist.get("seed_level"):
-        lines += ["", "The same comparisons with the training seed as the unit (metres):", ""]
-        lines += unit_level_table(dist["seed_level"], "seed", digits=4)
-    return lines
-
-
 def conditions(report: dict[str, Any]) -> list[str]:
     """The evaluation conditions in the report's order (the first arm's), e.g. ["clean", "dim:0.7"]."""
     return list(next(iter(report["success"].values())))
@@ -326,7 +287,8 @@ def markdown(report: dict[str, Any]) -> str:
         *drop_lines(report),
         *paired_lines(report),
         *unit_level_lines(report),
-        *distance_lines(report, conditions(report)),
+        *measure_lines(report, conditions(report)),
+        *measure_lines(report, conditions(report), "stage"),
         *val_loss_lines(report),
         "",
         "## What the numbers say",
@@ -380,13 +342,15 @@ def results_block(report: dict[str, Any], figure: str) -> str:
             *per_seed_lines(report),
             *paired_lines(report),
             *unit_level_lines(report),
-            *distance_lines(report, conditions(report)),
+            *measure_lines(report, conditions(report)),
             *val_loss_lines(report),
             "",
             *convergence_lines(report),
         ]
     elif len(report["tasks"]) > 2 or len(report["success"]) > 2:  # the pooled headline hides too much
         lines += [*per_task_lines(report), ""]
+    stage = measure_lines(report, conditions(report), "stage")  # a staged reward: how far failures got
+    lines += [*stage[1:], ""] if stage else []
     data = BlockData.of_report(report, BLOCK_ALIGNMENT_KEYS).line()
     lines += [*glc_lines(report), *report["verdict"], "", f"![attention]({figure})", data, ""]
     return "\n".join(lines)

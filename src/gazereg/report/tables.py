@@ -205,9 +205,10 @@ def distance_value(key: str = "min_distance") -> Callable[[dict[str, Any]], floa
 
 
 def distance_table(records: list[dict[str, Any]], key: str = "min_distance") -> dict[str, dict[str, Any]]:
-    """{arm: {condition: {mean, ci95, n}}} of a per-episode distance (metres) pooled over training seeds and
-    tasks (normal-approximation interval from the sample SD, as `stats.paired_mean_difference`); empty when
-    the records carry none (a simulator without a progress measure)."""
+    """{arm: {condition: {mean, ci95, n}}} of a per-episode progress measure `key` (min_distance: metres;
+    max_reward: a staged reward, `gazereg.report.progress`) pooled over training seeds and tasks
+    (normal-approximation interval from the sample SD, as `stats.paired_mean_difference`); empty when the
+    records carry none (a simulator without that measure)."""
     cells: dict[tuple[str, str], list[float]] = defaultdict(list)
     for r in records:
         if key in r:
@@ -223,8 +224,9 @@ def distance_table(records: list[dict[str, Any]], key: str = "min_distance") -> 
 def paired_distance_tests(
     records: list[dict[str, Any]], key: str = "min_distance", reference: str = "baseline"
 ) -> dict[str, dict[str, Any]]:
-    """Each arm against `reference` per condition on a per-episode distance, paired by (training seed, task,
-    setup seed): mean difference (negative: closer than the reference), 95% interval, permutation p."""
+    """Each arm against `reference` per condition on a per-episode progress measure `key` (`distance_table`),
+    paired by (training seed, task, setup seed): mean difference (for a distance, negative: closer than the
+    reference), 95% interval, permutation p."""
     pairs = paired_by_setup(records, distance_value(key), reference)
     return {name: paired_mean_difference(x, y) for name, _, x, y in pairs}
 
