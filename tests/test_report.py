@@ -18,7 +18,7 @@ from gazereg.report import (
     verdict,
 )
 from gazereg.report.comparisons import paired_lines
-from gazereg.report.progress import measure_lines, stage_section
+from gazereg.report.progress import measure_lines, progress_sections
 
 
 def records(arm, successes, condition="clean", task="reach-v3", start=1000):
@@ -269,10 +269,10 @@ def test_a_staged_reward_is_a_progress_section_of_its_own_only_where_recorded():
     """Gym-Aloha's episodes carry the highest staged reward (max_reward); the report then holds a `stage`
     section (per arm, and each arm against the baseline, paired by setup), and none for records without it."""
     recs = records("baseline@s0", [0] * 6) + records("gaze@s0", [0] * 5 + [1])
-    assert stage_section(recs, {}) == {}
+    assert "stage" not in progress_sections(recs, {})
     for r in recs:
         r["max_reward"] = 4.0 if r["success"] else (2.0 if r["arm"].startswith("gaze") else 1.0)
-    stage = stage_section(recs, {"uniform": []})["stage"]
+    stage = progress_sections(recs, {"uniform": []})["stage"]
     assert stage["table"]["baseline"]["clean"]["mean"] == pytest.approx(1.0)
     assert stage["table"]["gaze"]["clean"]["mean"] == pytest.approx((5 * 2.0 + 4.0) / 6)
     paired = stage["paired"]["gaze vs baseline | clean"]

@@ -20,12 +20,9 @@ from gazereg.report.convergence import ConvergencePoint, convergence_report
 from gazereg.report.figures import plot_convergence, plot_success
 from gazereg.report.ids import RunId
 from gazereg.report.markdown import markdown
-from gazereg.report.progress import stage_section
+from gazereg.report.progress import progress_sections
 from gazereg.report.tables import (
-    distance_table,
-    distance_value,
     machine_summary,
-    paired_distance_tests,
     paired_tests,
     per_seed_table,
     per_task_paired_tests,
@@ -123,8 +120,6 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
     levels = {"seed": unit_level_tests(episodes, "seed")}
     if len(spec.tasks) >= MIN_TASK_LEVEL_TASKS:
         levels["task"] = unit_level_tests(episodes, "task")
-    distance = paired_distance_tests(episodes)
-    distance_seeds = unit_level_tests(episodes, "seed", value=distance_value())
     verdicts = verdict(success, paired=paired, levels=levels)
     for control, records in controls.items():
         paired.update(paired_tests(records, control))
@@ -132,8 +127,6 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
             per_task.update(per_task_paired_tests(records, control))
         for unit, tests in levels.items():
             tests.update(unit_level_tests(records, unit, control))
-        distance.update(paired_distance_tests(records, reference=control))
-        distance_seeds.update(unit_level_tests(records, "seed", control, distance_value()))
         verdicts += verdict(success_table(records), control, paired, levels=levels)
     conv = convergence_report(_convergence_points(spec, outputs), spec.threshold)
     figs = out / "figures"
@@ -148,12 +141,7 @@ def build_report(spec: ReportSpec, outputs: StageOutputs, out: Path) -> dict[str
         "per_seed": per_seed_table(episodes) if len(spec.train_seeds) > 1 else None,
         "seed_level": levels["seed"] or None,
         "task_level": levels.get("task") or None,
-        "distance": {
-            "table": distance_table(episodes),
-            "paired": distance,
-            "seed_level": distance_seeds or None,
-        },
-        **stage_section(episodes, controls),
+        **progress_sections(episodes, controls),
         "verdict": verdicts,
         "convergence": conv,
         "glc": outputs.glc,

@@ -2,7 +2,7 @@
 the object to its target (Meta-World's `min_distance`, metres) and the furthest stage of a staged task reward
 (Gym-Aloha's `max_reward`, 0..4), each a report section {table, paired, seed_level} and its markdown.
 
-    section = stage_section(episodes, controls)     # {"stage": {...}} when the records carry max_reward, else {}
+    sections = progress_sections(episodes, controls)   # {"distance": {...}, "stage": {...} if max_reward}
     lines = measure_lines(report, ["clean"], "stage")
 """
 
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from gazereg.report.comparisons import comparison_lines, unit_level_table
-from gazereg.report.tables import distance_table, paired_distance_tests
+from gazereg.report.tables import distance_table, distance_value, paired_distance_tests, unit_level_tests
 
 
 @dataclass(frozen=True)
@@ -83,17 +83,28 @@ def measure_lines(report: dict[str, Any], conds: list[str], key: str = "distance
     return lines
 
 
-def stage_section(
+def measure_section(
+    episodes: list[dict[str, Any]], controls: dict[str, list[dict[str, Any]]], key: str
+) -> dict[str, Any]:
+    """The report section of the progress measure `key` (`MEASURES`): its table per arm and condition, each
+    arm against the baseline and the gaze arm against each control in `controls` ({control: the gaze arm's and
+    its records}) paired by setup, and the same with the training seed as the unit (None when no pair of
+    seeds)."""
+    m = MEASURES[key].record_key
+    paired = paired_distance_tests(episodes, m)
+    seeds = unit_level_tests(episodes, "seed", value=distance_value(m))
+    for control, records in controls.items():
+        paired.update(paired_distance_tests(records, m, reference=control))
+        seeds.update(unit_level_tests(records, "seed", control, distance_value(m)))
+    return {"table": distance_table(episodes, m), "paired": paired, "seed_level": seeds or None}
+
+
+def progress_sections(
     episodes: list[dict[str, Any]], controls: dict[str, list[dict[str, Any]]]
 ) -> dict[str, Any]:
-    """{"stage": {"table", "paired"}} of the episodes' staged reward (`MEASURES["stage"]`: per arm and
-    condition, and each arm against the baseline and the gaze arm against each control in `controls`, {control:
-    the gaze arm's and its records}), or {} when no record carries one (a simulator without a staged reward)."""
-    key = MEASURES["stage"].record_key
-    table = distance_table(episodes, key)
-    if not table:
-        return {}
-    paired = paired_distance_tests(episodes, key)
-    for control, records in controls.items():
-        paired.update(paired_distance_tests(records, key, reference=control))
-    return {"stage": {"table": table, "paired": paired}}
+    """The report's progress sections (`measure_section`): "distance" always (empty where the simulator
+    measures none), "stage" only when the records carry a staged reward (Gym-Aloha)."""
+    stage = measure_section(episodes, controls, "stage")
+    return {"distance": measure_section(episodes, controls, "distance")} | (
+        {"stage": stage} if stage["table"] else {}
+    )
