@@ -98,6 +98,17 @@ def stages_text(rewards: list[float]) -> str:
     return " / ".join(str(sum(r >= s for r in rewards)) for s in STAGES) + f" of {len(rewards)}"
 
 
+def score(episodes: list[Record]) -> tuple[int, float]:
+    """A candidate's score: (its validation successes, the sum of its episodes' highest staged rewards)."""
+    return totals(validation_successes(episodes))[0], sum(highest_rewards(episodes))
+
+
+def chosen() -> Candidate | None:
+    """The chosen candidate, from the archives; None while a candidate has not run."""
+    runs = {c.name: PROTOCOL.finished(c) for c in PROTOCOL.candidates}
+    return PROTOCOL.chosen({name: score(run.episodes()) for name, run in runs.items() if run is not None})
+
+
 def table() -> str:
     """docs/tuning/aloha.md: every candidate, recounted from its archive, in the protocol's order."""
     lines = [
@@ -118,7 +129,7 @@ def table() -> str:
             rows.append([cand.name, cand.change, "not run yet", "", "", ""])
             continue
         val, rewards = validation_successes(run.episodes()), highest_rewards(run.episodes())
-        scores[cand.name] = (totals(val)[0], sum(rewards))
+        scores[cand.name] = score(run.episodes())
         rows.append(
             [
                 cand.name,

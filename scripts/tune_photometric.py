@@ -77,6 +77,17 @@ PROTOCOL = Protocol(
 )
 
 
+def score(episodes: list[dict]) -> int:
+    """A candidate's score: its validation successes pooled over `CONDITIONS`."""
+    return totals(validation_successes(episodes, CONDITIONS))[0]
+
+
+def chosen() -> Candidate | None:
+    """The chosen candidate, from the archives; None while a candidate has not run."""
+    runs = {c.name: PROTOCOL.finished(c) for c in PROTOCOL.candidates}
+    return PROTOCOL.chosen({name: score(run.episodes()) for name, run in runs.items() if run is not None})
+
+
 def table() -> str:
     """docs/tuning/photometric.md: every candidate, recounted from its archive, in the protocol's order."""
     lines = [
@@ -99,7 +110,7 @@ def table() -> str:
         eps = episodes[cand.name] = run.episodes()
         per = [rate_text(validation_successes(eps, (c,))) for c in CONDITIONS]
         pooled = validation_successes(eps, CONDITIONS)
-        scores[cand.name] = totals(pooled)[0]
+        scores[cand.name] = score(eps)
         rows.append(
             [cand.name, cand.change, *per, rate_text(pooled), per_task_text(validation_successes(eps))]
         )

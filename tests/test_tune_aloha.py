@@ -139,3 +139,30 @@ def test_the_committed_table_is_the_archives(load_script):
         load_script("scripts/tune_aloha.py", "tune_aloha_real").table()
         == (ROOT / "docs" / "tuning" / "aloha.md").read_text()
     )
+
+
+def test_a_preset_differs_from_the_chosen_recipe_by_the_candidates_flags(tune, fake_archive):
+    """`recipe_diff` names the training keys in which a preset is not the chosen candidate's run, and only
+    those (evaluation setups, arms and execution keys aside)."""
+    for name in [c.name for c in tune.PROTOCOL.candidates]:
+        k = 5 if name == "chunk16-te" else 1
+        fake_archive(name, {TASKS[0]: floor(k_touch=k), TASKS[1]: floor()})
+    cand = tune.chosen()
+    assert cand.name == "chunk16-te"
+    assert tune.PROTOCOL.recipe_diff(cand, PRESETS["aloha"]()) == {
+        "train.policy.chunk": [16, 4],
+        "train.policy.temporal_ensemble": [0.01, None],
+    }
+    assert tune.PROTOCOL.recipe_diff(tune.PROTOCOL.candidate("default"), PRESETS["aloha"]()) == {}
+    shutil.rmtree(tune.PROTOCOL.archive_path("lr5e-4"))
+    assert tune.chosen() is None  # a candidate to run: no choice yet
+
+
+def test_the_aloha_preset_trains_with_the_chosen_recipe(load_script):
+    """Once every candidate has run, the `aloha` preset (every arm) is the chosen candidate's recipe."""
+    tune = load_script("scripts/tune_aloha.py", "tune_aloha_chosen")
+    cand = tune.chosen()
+    if cand is None:
+        assert "- not yet: " in (ROOT / "docs" / "tuning" / "aloha.md").read_text()
+        pytest.skip("the Aloha protocol has candidates to run")
+    assert tune.PROTOCOL.recipe_diff(cand, PRESETS["aloha"]()) == {}

@@ -162,3 +162,14 @@ def test_the_committed_table_is_the_archives(load_script):
         load_script("scripts/tune_photometric.py", "tune_photometric_real").table()
         == (ROOT / "docs" / "tuning" / "photometric.md").read_text()
     )
+
+
+def test_the_libero_presets_train_with_the_chosen_augmentation(load_script):
+    """The protocol's choice is the recipe every LIBERO suite's arms train with (the presets, not a flag)."""
+    tune = load_script("scripts/tune_photometric.py", "tune_photometric_chosen")
+    cand = tune.chosen()
+    assert cand is not None and cand.name in (ROOT / "docs" / "tuning" / "photometric.md").read_text()
+    for preset in ("libero", "libero_object", "libero_goal", "libero_10"):
+        diff = tune.PROTOCOL.recipe_diff(cand, PRESETS[preset]())
+        assert not [k for k in diff if k.startswith("train.photometric.")], (preset, diff)
+    assert tune.PROTOCOL.recipe_diff(cand, PRESETS["libero"]()) == {}

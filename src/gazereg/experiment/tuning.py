@@ -39,7 +39,7 @@ from gazereg.experiment.config import DEFAULT_PRESET, EXECUTION_KEYS, PRESETS, E
 from gazereg.experiment.finished import FinishedRun, Record, read_run, stage_marker
 from gazereg.experiment.records import as_saved_now
 from gazereg.report.ids import RunId
-from gazereg.runtime.config import check_same_config, parse
+from gazereg.runtime.config import check_same_config, config_diff, parse, to_dict
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_text
 
@@ -251,15 +251,30 @@ class Protocol:
         write_record(self.result_path(cand.name), record)
         return run
 
+    def chosen(self, scores: Mapping[str, int] | Mapping[str, tuple[float, ...]]) -> Candidate | None:
+        """The chosen candidate (`choose` over `scores`, {name: score} of the candidates finished so far); None
+        while a candidate has not run."""
+        if len(scores) < len(self.candidates):
+            return None
+        return self.candidate(choose(scores))
+
+    def recipe_diff(self, cand: Candidate, cfg: ExperimentConfig) -> dict[str, list[Any]]:
+        """{train.key: [candidate `cand`'s value, `cfg`'s]} for every training-recipe key in which the
+        experiment `cfg` (a preset) differs from the candidate's run, execution keys aside: {} when `cfg`
+        trains its arms with the candidate's recipe."""
+        ran = to_dict(built_config(tuple(self.command(cand))))
+        diff = config_diff(ran, to_dict(cfg), ignore=EXECUTION_KEYS)
+        return {k: v for k, v in diff.items() if k.startswith("train.")}
+
     def choice(self, scores: Mapping[str, int] | Mapping[str, tuple[float, ...]], rule: str) -> list[str]:
         """The lines of a table's choice under the protocol's `rule` (prose): the chosen candidate (`choose`
         over `scores`, {name: score} of the candidates finished so far) and its flags, or the candidates still
         to run."""
         lines = ["", f"Chosen ({rule}):", ""]
-        if len(scores) < len(self.candidates):
+        best = self.chosen(scores)
+        if best is None:
             todo = [c.name for c in self.candidates if c.name not in scores]
             return [*lines, "- not yet: " + ", ".join(todo) + " to run"]
-        best = self.candidate(choose(scores))
         flags = shlex.join(best.overrides) or "the preset, no override"
         return [*lines, f"- **{best.name}**, {best.change}: `{flags}` in every arm's recipe"]
 
