@@ -25,6 +25,10 @@ Protocol (fixed on 2026-12-06, before any candidate ran):
   against socket, 4 inserted), then to the earlier candidate. The chosen flags then go into every arm's
   recipe of the `aloha` preset (baseline, gaze, uniform); the gaze term is not retuned here. A second round,
   if any, is stated here before it runs.
+- Amended on 2026-12-06, with two candidates archived and none chosen, changing no candidate's configuration
+  (tested): each command pins the preset's values, as they were, of the keys the candidates change and of the
+  validation conditions (`PINNED`), so the archives still check against their commands after the preset has
+  taken the choice.
 The later candidates copy the first's demonstrations (`--data-from`, when its folder is here). Each finished
 candidate `runs/tune-aloha/<name>` is archived as docs/records/tune-aloha/<name> (`gazereg archive`, so its row
 recomputes from its episodes) and recorded in docs/tuning/aloha/<name>.json; docs/tuning/aloha.md, the table
@@ -54,6 +58,12 @@ BASE = (
     "--preset", "aloha", "--arms", "baseline", "--threads-per-run", "2",
     "--eval.seed-start", str(VALIDATION_FROM), "--eval.episodes", "25",
 )  # fmt: skip
+PINNED = (
+    "--train.policy.chunk", "4", "--train.policy.n-action-steps", "1",
+    "--train.policy.temporal-ensemble", "None", "--train.steps", "6000", "--train.optim.lr", "0.001",
+    "--eval.conditions", "clean",
+)  # fmt: skip
+"""the `aloha` preset's recipe and evaluation when the protocol was fixed, for the keys the candidates change"""
 STAGES = (1, 2, 3, 4)
 """the staged rewards the table counts episodes reaching"""
 
@@ -81,6 +91,7 @@ PROTOCOL = Protocol(
         Candidate("steps12k", "12,000 steps", ("--train.steps", "12000")),
         Candidate("lr5e-4", "learning rate 5e-4", ("--train.optim.lr", "5e-4")),
     ),
+    pinned=PINNED,
 )
 
 

@@ -11,7 +11,7 @@ from gazereg.envs.aloha.setup import EPISODE_LENGTH
 from gazereg.experiment import tuning
 from gazereg.experiment.config import PRESETS
 from gazereg.experiment.demos import demo_collections
-from gazereg.experiment.tuning import built_config
+from gazereg.experiment.tuning import built_config, experiment_command
 from gazereg.runtime.config import config_diff, to_dict
 from gazereg.runtime.errors import UsageError
 
@@ -166,3 +166,22 @@ def test_the_aloha_preset_trains_with_the_chosen_recipe(load_script):
         assert "- not yet: " in (ROOT / "docs" / "tuning" / "aloha.md").read_text()
         pytest.skip("the Aloha protocol has candidates to run")
     assert tune.PROTOCOL.recipe_diff(cand, PRESETS["aloha"]()) == {}
+
+
+def test_the_candidates_build_the_configurations_they_ran_whatever_recipe_the_preset_takes(tune, monkeypatch):
+    """The pinned flags hold every key a candidate changes: with the preset's recipe (and evaluation) changed
+    to any candidate's, every candidate's command still builds the configuration it built before."""
+    from gazereg.experiment import config
+
+    def built(cand):
+        return to_dict(tuning.parse(config.PRESETS, tune.PROTOCOL.command(cand)[2:], prog="t"))
+
+    before = {c.name: built(c) for c in tune.PROTOCOL.candidates}
+    presets = {
+        c.name: built_config(tuple(experiment_command(("--preset", "aloha"), c.overrides, "x")))
+        for c in tune.PROTOCOL.candidates[1:]
+    }  # the preset as it would be after choosing each candidate
+    for name, cfg in presets.items():
+        cfg = dataclasses.replace(cfg, eval=dataclasses.replace(cfg.eval, conditions=("clean", "dim:0.7")))
+        monkeypatch.setitem(config.PRESETS, "aloha", lambda cfg=cfg: cfg)
+        assert {c.name: built(c) for c in tune.PROTOCOL.candidates} == before, name

@@ -197,20 +197,26 @@ class Protocol:
     """A tuning protocol whose candidates are archived `gazereg experiment` runs (scripts/tune_photometric.py,
     tune_aloha.py): candidate `c` runs in `root`/runs/tune-<name>/<c> (the shared options `base`, then its
     overrides), is archived to docs/records/tune-<name>/<c> and recorded in docs/tuning/<name>/<c>.json; the
-    protocol's table is docs/tuning/<name>.md. `conditions`: those its score pools (`validation_successes`)."""
+    protocol's table is docs/tuning/<name>.md. `conditions`: those its score pools (`validation_successes`).
+    `pinned`: flags put between `base` and a candidate's overrides that hold the preset's values, as they were
+    when the protocol was fixed, of every key a candidate changes (and of the evaluation it validates on), so
+    that the candidates' commands keep building the configurations they ran after the preset takes the
+    choice."""
 
     name: str
     root: Path
     base: tuple[str, ...]
     candidates: tuple[Candidate, ...]
     conditions: tuple[str, ...] = ("clean",)
+    pinned: tuple[str, ...] = ()
 
     def candidate(self, name: str) -> Candidate:
         return next(c for c in self.candidates if c.name == name)
 
     def command(self, cand: Candidate) -> list[str]:
         """The candidate's `gazereg experiment` command line (its output folder relative to `root`)."""
-        return experiment_command(self.base, cand.overrides, f"runs/tune-{self.name}/{cand.name}")
+        overrides = (*self.pinned, *cand.overrides)
+        return experiment_command(self.base, overrides, f"runs/tune-{self.name}/{cand.name}")
 
     def archive_path(self, name: str) -> Path:
         return self.root / "docs" / "records" / f"tune-{self.name}" / name
