@@ -61,7 +61,7 @@ BASE = (
 PINNED = (
     "--train.policy.chunk", "4", "--train.policy.n-action-steps", "1",
     "--train.policy.temporal-ensemble", "None", "--train.steps", "6000", "--train.optim.lr", "0.001",
-    "--eval.conditions", "clean",
+    "--eval.conditions", "clean", "--eval.robustness-episodes", "None",
 )  # fmt: skip
 """the `aloha` preset's recipe and evaluation when the protocol was fixed, for the keys the candidates change"""
 STAGES = (1, 2, 3, 4)

@@ -11,7 +11,7 @@ from gazereg.envs.aloha.setup import EPISODE_LENGTH
 from gazereg.experiment import tuning
 from gazereg.experiment.config import PRESETS
 from gazereg.experiment.demos import demo_collections
-from gazereg.experiment.tuning import built_config, experiment_command
+from gazereg.experiment.tuning import built_config
 from gazereg.runtime.config import config_diff, to_dict
 from gazereg.runtime.errors import UsageError
 
@@ -147,13 +147,14 @@ def test_a_preset_differs_from_the_chosen_recipe_by_the_candidates_flags(tune, f
     for name in [c.name for c in tune.PROTOCOL.candidates]:
         k = 5 if name == "chunk16-te" else 1
         fake_archive(name, {TASKS[0]: floor(k_touch=k), TASKS[1]: floor()})
-    cand = tune.chosen()
+    cand, default = tune.chosen(), tune.PROTOCOL.candidate("default")
     assert cand.name == "chunk16-te"
-    assert tune.PROTOCOL.recipe_diff(cand, PRESETS["aloha"]()) == {
+    before = built_config(tuple(tune.PROTOCOL.command(default)))  # the preset as it was
+    assert tune.PROTOCOL.recipe_diff(cand, before) == {
         "train.policy.chunk": [16, 4],
         "train.policy.temporal_ensemble": [0.01, None],
     }
-    assert tune.PROTOCOL.recipe_diff(tune.PROTOCOL.candidate("default"), PRESETS["aloha"]()) == {}
+    assert tune.PROTOCOL.recipe_diff(default, before) == {}
     shutil.rmtree(tune.PROTOCOL.archive_path("lr5e-4"))
     assert tune.chosen() is None  # a candidate to run: no choice yet
 
@@ -178,10 +179,10 @@ def test_the_candidates_build_the_configurations_they_ran_whatever_recipe_the_pr
 
     before = {c.name: built(c) for c in tune.PROTOCOL.candidates}
     presets = {
-        c.name: built_config(tuple(experiment_command(("--preset", "aloha"), c.overrides, "x")))
-        for c in tune.PROTOCOL.candidates[1:]
-    }  # the preset as it would be after choosing each candidate
+        c.name: built_config(tuple(tune.PROTOCOL.command(c))) for c in tune.PROTOCOL.candidates
+    }  # the preset as it would be after choosing each candidate (its evaluation changed below)
     for name, cfg in presets.items():
-        cfg = dataclasses.replace(cfg, eval=dataclasses.replace(cfg.eval, conditions=("clean", "dim:0.7")))
+        ev = dataclasses.replace(cfg.eval, conditions=("clean", "dim:0.7"), robustness_episodes=5)
+        cfg = dataclasses.replace(cfg, eval=ev)
         monkeypatch.setitem(config.PRESETS, "aloha", lambda cfg=cfg: cfg)
         assert {c.name: built(c) for c in tune.PROTOCOL.candidates} == before, name

@@ -1,5 +1,6 @@
 """The `aloha` preset's pipeline at toy size, end to end in Gym-Aloha: one expert demonstration per task with its
-gaze extras, visuomotor priors, a few training steps per arm, one evaluation episode per task (of 400 steps)."""
+gaze extras, visuomotor priors, a few training steps per arm (a toy policy executing actions as the preset's
+does), one evaluation episode per task (of 400 steps)."""
 
 from __future__ import annotations
 
@@ -19,7 +20,8 @@ from gazereg.training.config import ci as ci_train
 
 
 def test_the_aloha_pipeline_runs_every_stage(tmp_path):
-    base = aloha()
+    base, toy = aloha(), ci_train()
+    chunking = {k: getattr(base.train.policy, k) for k in ("chunk", "n_action_steps", "temporal_ensemble")}
     cfg = replace(
         base,
         out=tmp_path / "exp",
@@ -29,9 +31,11 @@ def test_the_aloha_pipeline_runs_every_stage(tmp_path):
         heldout_per_task=1,
         collect_workers=1,
         prior_size=(32, 32),
-        train=replace(ci_train(), steps=4, gaze=GazeConfig(weight=0.1)),
+        train=replace(toy, steps=4, gaze=GazeConfig(weight=0.1), policy=replace(toy.policy, **chunking)),
         parallel=1,
-        eval=replace(base.eval, episodes=1, workers=1, videos=0, conditions=("clean",)),
+        eval=replace(
+            base.eval, episodes=1, robustness_episodes=None, workers=1, videos=0, conditions=("clean",)
+        ),
         convergence_episodes=1,
         figure_frames=2,
     )

@@ -67,7 +67,8 @@ def test_explicit_targets_still_override_the_episodes():
 
 def test_the_aloha_preset():
     """Baseline, gaze and uniform on both tasks from the top camera; 50 evaluation episodes per task at the
-    env's 400 steps on setups no demonstration (nor a replacement for a failed one) starts from."""
+    env's 400 steps on setups no demonstration (nor a replacement for a failed one) starts from, the first 25
+    of them again dimmed and with sensor noise."""
     from gazereg.experiment.config import PRESETS
 
     cfg = PRESETS["aloha"]()
@@ -76,6 +77,8 @@ def test_the_aloha_preset():
     assert cfg.camera == "top" and set(cfg.arms) == {"baseline", "gaze", "uniform"}
     assert cfg.eval.episodes == 50 and cfg.eval.max_steps == 400
     assert cfg.demos_per_task + cfg.demo_max_failures <= cfg.eval.seed_start
+    assert cfg.eval.conditions == ("clean", "dim:0.7", "gaussian_noise:0.5")
+    assert list(cfg.eval.seeds("dim:0.7")) == list(cfg.eval.seeds("clean"))[:25]
 
 
 def test_unknown_simulator_lists_aloha():

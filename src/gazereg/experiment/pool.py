@@ -24,14 +24,14 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from gazereg.experiment.config import PRESETS, ExperimentConfig
+from gazereg.experiment.config import EXECUTION_KEYS, PRESETS, ExperimentConfig
 from gazereg.experiment.finished import CONFIG_FILE, POOLED_RECORD, read_run
 from gazereg.experiment.records import report_spec
 from gazereg.experiment.runner import Experiment
 from gazereg.report.build import StageOutputs, build_report, write_report
 from gazereg.report.figures import stack_figures
 from gazereg.report.ids import RunId
-from gazereg.runtime.config import parse_named, save_config
+from gazereg.runtime.config import config_diff, parse_named, save_config, to_dict
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_json
 
@@ -106,6 +106,17 @@ def _comparable(record: object) -> object:
     return record
 
 
+def preset_flags(cfg: ExperimentConfig, preset: str) -> list[str]:
+    """The options that make preset `preset` into `cfg`, what was measured only (the output folder, arms,
+    training seeds and execution keys aside), e.g. ["--train.policy.chunk", "4"]: a pooled report's command
+    names them, so that it pools the same folders again."""
+    ignore = ("out", "arms", "train_seeds", "train.run_dir", *EXECUTION_KEYS)
+    flags: list[str] = []
+    for key, (_, value) in config_diff(to_dict(PRESETS[preset]()), to_dict(cfg), ignore).items():
+        flags += [f"--{key.replace('_', '-')}", *map(str, value if isinstance(value, list) else [value])]
+    return flags
+
+
 def pool(cfg: ExperimentConfig, preset: str, sources: Sequence[Path]) -> Path:
     """Write the pooled report of `sources` into `cfg.out` (report.json, report.md, figures, the config and
     pooled.json naming the folders); returns report.md's path."""
@@ -129,6 +140,7 @@ def pool(cfg: ExperimentConfig, preset: str, sources: Sequence[Path]) -> Path:
     merged = merge_outputs([Path(s) for s in sources], outputs, out)
     report = build_report(report_spec(cfg, preset), merged, out)
     report["pooled_from"] = [str(s) for s in sources]
+    report["pooled_flags"] = preset_flags(cfg, preset)
     save_config(cfg, out / CONFIG_FILE)
     atomic_write_json(
         out / POOLED_RECORD, {"folders": report["pooled_from"], "runs": [list(map(str, g)) for g in runs]}

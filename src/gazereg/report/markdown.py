@@ -10,6 +10,7 @@ lacks that section's data.
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
 from typing import Any
 
@@ -306,8 +307,9 @@ def headline_lines(report: dict[str, Any]) -> list[str]:
     command = "make demo" if report["preset"] == "demo" else f"gazereg experiment --preset {report['preset']}"
     wall = f"wall time {report['wall_time_s'] / 60:.1f} min"
     if report.get("pooled_from"):  # one seed per folder (gazereg.experiment.pool)
+        flags = "".join(f" {shlex.quote(f)}" for f in report.get("pooled_flags", []))
         command = (
-            f"gazereg pool --preset {report['preset']} --arms {' '.join(tr['arms'])} "
+            f"gazereg pool --preset {report['preset']}{flags} --arms {' '.join(tr['arms'])} "
             f"--train-seeds {' '.join(map(str, tr['seeds']))} --runs {' '.join(report['pooled_from'])}"
         )
         wall += f" summed over {len(report['pooled_from'])} runs"
