@@ -116,8 +116,7 @@ def score(episodes: list[Record]) -> tuple[int, float]:
 
 def chosen() -> Candidate | None:
     """The chosen candidate, from the archives; None while a candidate has not run."""
-    runs = {c.name: PROTOCOL.finished(c) for c in PROTOCOL.candidates}
-    return PROTOCOL.chosen({name: score(run.episodes()) for name, run in runs.items() if run is not None})
+    return PROTOCOL.chosen_from_archives(score)
 
 
 def table() -> str:

@@ -73,10 +73,8 @@ def test_pooled_folders_report_what_one_run_of_every_seed_and_arm_reports(tmp_pa
     )
     from gazereg.report import results_block
 
-    assert a["pooled_flags"] == [
-        "--eval.conditions",
-        "clean",
-    ]  # what differs from the preset (not --parallel)
+    # the options that differ from the preset, what was measured only (not --parallel, an execution key)
+    assert a["pooled_flags"] == ["--eval.conditions", "clean"]
     flags = f"--eval.conditions clean {' '.join(ARMS)}"
     command = f"gazereg pool --preset smoke {flags} --train-seeds 0 1 --runs {' '.join(runs[1:])}"
     assert f"(`{command}`)" in results_block(a, "x.png")  # the command that pools them again

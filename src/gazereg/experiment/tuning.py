@@ -264,6 +264,12 @@ class Protocol:
             return None
         return self.candidate(choose(scores))
 
+    def chosen_from_archives(self, score: Callable[[list[Record]], Any]) -> Candidate | None:
+        """The chosen candidate (`chosen`), each archived candidate scored by `score` (its evaluation records
+        -> its score); None while a candidate has not run."""
+        runs = {c.name: self.finished(c) for c in self.candidates}
+        return self.chosen({name: score(run.episodes()) for name, run in runs.items() if run is not None})
+
     def recipe_diff(self, cand: Candidate, cfg: ExperimentConfig) -> dict[str, list[Any]]:
         """{train.key: [candidate `cand`'s value, `cfg`'s]} for every training-recipe key in which the
         experiment `cfg` (a preset) differs from the candidate's run, execution keys aside: {} when `cfg`
