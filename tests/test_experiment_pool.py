@@ -182,3 +182,31 @@ def test_a_copied_priors_record_names_the_glc_checkpoints_in_its_own_folder(tmp_
         "folds": [{"checkpoint": str(out / "glc" / "fold0" / "final")}, {"checkpoint": "/elsewhere/glc"}],
         "seconds": 0.0,
     }
+
+
+@pytest.mark.parametrize(
+    "flags",
+    [
+        ("--eval.conditions", "clean", "dim:0.5", "gaussian_noise:0.1"),  # a tuple of several values
+        (
+            "--train.policy.chunk",
+            "8",
+            "--train.policy.n-action-steps",
+            "4",
+            "--train.policy.image-hw",
+            "96",
+            "96",
+            "--eval.robustness-episodes",
+            "None",
+        ),
+    ],
+)
+def test_the_pooled_flags_rebuild_the_configuration_they_were_read_from(flags):
+    from gazereg.experiment.pool import preset_flags
+    from gazereg.runtime.config import config_diff, to_dict
+    from gazereg.training.config import EXECUTION_KEYS
+
+    cfg = built_config(("gazereg", "experiment", "--preset", "aloha", *flags))
+    rebuilt = built_config(("gazereg", "experiment", "--preset", "aloha", *preset_flags(cfg, "aloha")))
+    assert preset_flags(cfg, "aloha") != []
+    assert config_diff(to_dict(cfg), to_dict(rebuilt), ignore=EXECUTION_KEYS) == {}
