@@ -12,10 +12,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
+from gazereg.patches import Orientation
 from gazereg.policies.base import PolicyConfig
 
 Head = Literal["l1", "flow"]
-Orientation = Literal["none", "rot180", "hflip", "vflip"]
 AttentionImpl = Literal["math", "sdpa"]
 
 
