@@ -101,6 +101,20 @@ def test_libero_10_runs_one_arm_a_sitting_on_both_threads_the_table_arms_seed_by
         assert len(s.arms) == 1 and cfg.arms == s.arms and cfg.threads_per_run == 2
 
 
+def test_aloha_sits_baseline_and_gaze_then_the_gaze_controls_then_the_flat_target_seed_by_seed():
+    """Two arms a sitting on one thread each; the flat target alone on both, under the name its archive
+    (docs/records/aloha-s0-uniform) was made with, so the controls added after it keep that sitting's name."""
+    aloha = sittings.SCHEDULES["aloha"]
+    groups = [("baseline", "gaze"), ("same_task", "perturbed"), ("uniform",)]
+    assert aloha.arm_groups(aloha.parts[0]) == groups
+    names = [s.name for s in aloha.sittings()]
+    assert names == [f"aloha-s{x}{a}" for x in (0, 1, 2) for a in ("", "-same_task", "-uniform")]
+    uniform = next(s for s in aloha.sittings() if s.name == "aloha-s0-uniform").command()
+    assert uniform[uniform.index("--arms") :] == [
+        "--arms", "uniform", "--threads-per-run", "2", "--out", "runs/aloha-s0-uniform"
+    ]  # fmt: skip
+
+
 def test_a_sittings_command_is_its_arms_at_its_seed_with_the_first_sittings_data_when_here(tmp_path):
     named = {s.name: s for s in STUDY.sittings()}
     s0, s0_glc, s1 = named["study50-s0"], named["study50-s0-glc"], named["study50-s1"]

@@ -66,7 +66,7 @@ def test_explicit_targets_still_override_the_episodes():
 
 
 def test_the_aloha_preset():
-    """Baseline, gaze and uniform on both tasks from the top camera; 50 evaluation episodes per task at the
+    """Baseline, gaze, the two gaze controls and uniform on both tasks from the top camera; 50 evaluation episodes per task at the
     env's 400 steps on setups no demonstration (nor a replacement for a failed one) starts from, the first 25
     of them again dimmed and with sensor noise."""
     from gazereg.experiment.config import PRESETS
@@ -74,7 +74,7 @@ def test_the_aloha_preset():
     cfg = PRESETS["aloha"]()
     assert cfg.env == cfg.eval.env == "aloha"
     assert cfg.tasks == cfg.eval.tasks == ("AlohaTransferCube-v0", "AlohaInsertion-v0")
-    assert cfg.camera == "top" and set(cfg.arms) == {"baseline", "gaze", "uniform"}
+    assert cfg.camera == "top" and set(cfg.arms) == {"baseline", "gaze", "same_task", "perturbed", "uniform"}
     assert cfg.eval.episodes == 50 and cfg.eval.max_steps == 400
     assert cfg.demos_per_task + cfg.demo_max_failures <= cfg.eval.seed_start
     assert cfg.eval.conditions == ("clean", "dim:0.7", "gaussian_noise:0.5")

@@ -133,7 +133,9 @@ def aloha() -> ExperimentConfig:
     """Gym-Aloha, the paper's bimanual benchmark (`bash scripts/aloha_lane.sh gazereg experiment --preset
     aloha`): transfer cube and insertion from the `top` camera at 128 px (patches of 16 px), baseline, gaze
     (visuomotor: the eyes lead each hand to its next target, cube then hand-over point; peg, socket, then the
-    meeting point) and the uniform control, one training seed; 50 scripted demonstrations per task on setups
+    meeting point), the controls same_task (another demonstration of the same task's gaze: its phases and the
+    fixed meeting point, the objects where that episode had them) and perturbed (the episode's own gaze, its
+    blocks shuffled), and the uniform control, one training seed; 50 scripted demonstrations per task on setups
     0..49 (failed ones replaced from 50..69), 50 unseen evaluation episodes per task (setups 1000..1049) of the
     env's 400 steps clean (the evaluation budget `aloha-50`), and the first 25 of them per task dimmed
     (`dim:0.7`) and with sensor noise (`gaussian_noise:0.5`), the paper's robustness axes; float32 on every CPU
@@ -151,7 +153,7 @@ def aloha() -> ExperimentConfig:
         demos_per_task=50,
         demo_max_failures=20,
         heldout_per_task=2,
-        arms=("baseline", "gaze", "uniform"),
+        arms=("baseline", "gaze", "same_task", "perturbed", "uniform"),
         train=replace(
             t,
             steps=6000,
