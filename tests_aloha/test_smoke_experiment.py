@@ -1,6 +1,7 @@
-"""The `aloha` preset's pipeline at toy size, end to end in Gym-Aloha: one expert demonstration per task with its
-gaze extras, visuomotor priors, a few training steps per arm (a toy policy executing actions as the preset's
-does), one evaluation episode per task (of 400 steps)."""
+"""The `aloha` preset's pipeline at toy size, end to end in Gym-Aloha: two expert demonstrations per task with their
+gaze extras (two, so that the same_task control has another demonstration of the task to take its gaze from),
+visuomotor priors and their controls, a few training steps per arm (a toy policy executing actions as the
+preset's does), one evaluation episode per task (of 400 steps)."""
 
 from __future__ import annotations
 
@@ -26,9 +27,9 @@ def test_the_aloha_pipeline_runs_every_stage(tmp_path):
         base,
         out=tmp_path / "exp",
         image_size=48,
-        demos_per_task=1,
+        demos_per_task=2,
         demo_max_failures=0,
-        heldout_per_task=1,
+        heldout_per_task=2,
         collect_workers=1,
         prior_size=(32, 32),
         train=replace(toy, steps=4, gaze=GazeConfig(weight=0.1), policy=replace(toy.policy, **chunking)),
@@ -42,12 +43,14 @@ def test_the_aloha_pipeline_runs_every_stage(tmp_path):
     assert isinstance(cfg.eval, EvalConfig) and cfg.eval.max_steps == 400
     Experiment(cfg, "aloha").run()
     report = json.loads((cfg.out / "report.json").read_text())
-    assert set(report["success"]) == {"baseline", "gaze", "uniform"}
+    assert (
+        set(report["success"]) == set(base.arms) >= {"baseline", "gaze", "same_task", "perturbed", "uniform"}
+    )
     for arm in report["success"].values():
         assert arm["clean"]["n"] == 2  # one episode per task
     store = EpisodeStore(demo_stores(cfg.out)["train"])
     episodes = list(store)
-    assert sorted(ep.task for ep in episodes) == sorted(cfg.tasks)
+    assert sorted(ep.task for ep in episodes) == sorted(cfg.tasks * cfg.demos_per_task)
     for ep in episodes:
         assert ep.meta["success"], ep.task  # the expert's demonstration of this setup succeeded
         trace = VisuomotorGaze().trace(ep, "top")
