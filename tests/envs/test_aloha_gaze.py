@@ -66,9 +66,9 @@ def test_explicit_targets_still_override_the_episodes():
 
 
 def test_the_aloha_preset():
-    """Baseline, gaze, the two gaze controls and uniform on both tasks from the top camera; 50 evaluation episodes per task at the
-    env's 400 steps on setups no demonstration (nor a replacement for a failed one) starts from, the first 25
-    of them again dimmed and with sensor noise."""
+    """Baseline, gaze, the two gaze controls and uniform on both tasks from the top camera; 50 evaluation
+    episodes per task at the env's 400 steps on setups no demonstration (nor a replacement for a failed one)
+    starts from, the first 25 of them again dimmed and with sensor noise."""
     from gazereg.experiment.config import PRESETS
 
     cfg = PRESETS["aloha"]()
