@@ -38,7 +38,7 @@ def _saved_without(cfg, path: Path, *keys: str) -> None:
     (path / "config.json").write_text(json.dumps(d))
 
 
-ADDED = ("env", "demo_max_failures", "glc_folds", "eval.robustness_episodes")
+ADDED = ("env", "demo_max_failures", "glc_folds", "eval.robustness_episodes", "tasks_without_demos")
 
 
 @pytest.mark.parametrize("preset", [quick, paper, smoke])
@@ -126,6 +126,60 @@ def test_the_libero_preset():
         assert PRESETS[preset]().env == "libero"
 
 
+def test_libero_10_evaluates_every_task_and_trains_on_those_its_expert_demonstrates():
+    """The preset's tasks without demonstrations are exactly those its expert never solved in its measured record
+    (docs/benchmarks/libero_10_expert.json); no collection runs them, the evaluation runs all ten."""
+    cfg = PRESETS["libero_10"]()
+    record = json.loads((Path(__file__).parents[1] / "docs/benchmarks/libero_10_expert.json").read_text())
+    never = tuple(r["task"] for r in record["tasks"].values() if r["successes"] == 0)
+    assert never and cfg.tasks_without_demos == never
+    assert cfg.demo_tasks == tuple(t for t in cfg.tasks if t not in never) and len(cfg.demo_tasks) == 9
+    for name, collection in demo_collections(cfg, Path("x")).items():
+        assert collection.tasks == cfg.demo_tasks, name
+    assert Experiment(cfg).eval_config("eval", {}).tasks == cfg.tasks and len(cfg.tasks) == 10
+
+
+def test_the_demos_record_counts_a_task_without_demonstrations_apart():
+    from gazereg.envs.collect import CollectReport
+    from gazereg.experiment.demos import collection_result
+    from gazereg.report.sections import demos_text
+
+    class Store:  # the two episode-store reads collection_result makes
+        metas = [
+            {"task": "t", "env_name": f"s/{k // 2}", "instruction": f"do {k // 2}", "length": 10}
+            for k in range(3)
+        ]
+
+        def indices(self):
+            return range(len(self.metas))
+
+        def meta(self, i):
+            return self.metas[i]
+
+    tasks = {"s/0": {"episodes": 2, "wanted": 2}, "s/1": {"episodes": 1, "wanted": 2}}
+    report = CollectReport(tasks=tasks, seconds=1.0, new_episodes=3, new_frames=30, complete=False)
+    got = collection_result("train", report, Store(), ("s/2",))
+    assert got["per_task"] == {"s/0": 2, "s/1": 1, "s/2": 0} and got["without"] == ["s/2"]
+    assert demos_text(got) == (
+        "3 episodes (30 frames) on training setups, 2 per task but fewer where the expert failed (s/1 1); "
+        "none of s/2 (the expert cannot demonstrate it: evaluated, never trained on)"
+    )
+    assert "none of" not in demos_text(collection_result("train", report, Store()))
+
+
+def test_a_glc_fold_trains_and_scores_on_its_tasks_with_demonstrations_only(tmp_path, monkeypatch):
+    from gazereg.experiment import glc
+
+    calls = []
+    monkeypatch.setattr(glc, "_run", lambda cfg, store, out, **kw: calls.append(kw))
+    monkeypatch.setattr(glc, "_record", lambda trained: {})
+    cfg = replace(PRESETS["libero_10"](), out=tmp_path)
+    folds = glc.train_glc_folds(cfg, tmp_path, {t: t for t in cfg.tasks})["folds"]
+    assert [f["predicts"] for f in folds] == [list(cfg.tasks[:5]), list(cfg.tasks[5:9])]
+    assert calls[1] == {"tasks": cfg.tasks[:5], "heldout_tasks": cfg.tasks[5:9]}
+    assert calls[0]["tasks"] == cfg.tasks[5:9]
+
+
 def test_each_tasks_glc_prior_comes_from_the_fold_that_did_not_train_on_it(tmp_path):
     cfg = replace(libero(), out=tmp_path)
     names = {t: f"name of {t}" for t in cfg.tasks}
@@ -151,6 +205,18 @@ def test_each_tasks_glc_prior_comes_from_the_fold_that_did_not_train_on_it(tmp_p
         ({"glc_folds": (("libero_spatial/0",), ("libero_spatial/7",))}, "in no group: ['libero_spatial/1']"),
         ({"glc_folds": (("libero_spatial/0",), ("libero_spatial/1", "x"))}, "not tasks: ['x']"),
         ({"demo_max_failures": -1}, "--demo-max-failures must be an integer >= 0"),
+        (
+            {"tasks_without_demos": ("libero_spatial/7",)},
+            "--tasks-without-demos: ['libero_spatial/7'] are not in",
+        ),
+        (
+            {"tasks_without_demos": ("libero_spatial/0", "libero_spatial/1")},
+            "--tasks-without-demos names every task: nothing would be trained on",
+        ),
+        (
+            {"tasks_without_demos": ("libero_spatial/1",)},
+            "the glc fold ['libero_spatial/1'] has no task with demonstrations",
+        ),
         ({"env": "metaworld"}, "--eval.env libero differs from --env metaworld"),
     ],
 )

@@ -43,6 +43,9 @@ class ExperimentConfig(Validated):
     """side of the square camera images the demonstrations store (pixels)"""
     demos_per_task: int = 30
     """expert demonstrations per task, on setups 0..demos_per_task-1"""
+    tasks_without_demos: tuple[str, ...] = ()
+    """tasks of `tasks` the expert cannot demonstrate (its measured record says so): evaluated like the others but
+    never trained on, since no collection (training, held-out or GLC) runs them; the report counts them apart"""
     demo_max_failures: int = 20
     """extra setups per task (seeds demos_per_task ..) tried in place of the expert's failed rollouts; with 0
     the demonstrations stay on setups 0..demos_per_task-1 and a task keeps fewer where the expert fails (the
@@ -136,7 +139,27 @@ class ExperimentConfig(Validated):
                 f"{option(prefix + 'eval.env')} {self.eval.env} differs from {option(prefix + 'env')} "
                 f"{self.env}: the evaluation runs in the demonstrations' simulator; set both"
             )
+        self.validate_untrained(prefix)
         self.validate_folds(prefix)
+
+    @property
+    def demo_tasks(self) -> tuple[str, ...]:
+        """`tasks` that have demonstrations: every one but `tasks_without_demos`, in order."""
+        return tuple(t for t in self.tasks if t not in self.tasks_without_demos)
+
+    def validate_untrained(self, prefix: str) -> None:
+        """`tasks_without_demos`: tasks of `tasks`, not all of them, and no fold of `glc_folds` made of them only."""
+        flag = option(prefix + "tasks_without_demos")
+        unknown = [t for t in self.tasks_without_demos if t not in self.tasks]
+        if unknown:
+            raise UsageError(f"{flag}: {unknown} are not in {option(prefix + 'tasks')}")
+        if not self.demo_tasks:
+            raise UsageError(f"{flag} names every task: nothing would be trained on")
+        bare = [fold for fold in self.glc_folds if fold and not set(fold) - set(self.tasks_without_demos)]
+        if bare:
+            raise UsageError(
+                f"{flag}: the glc fold {list(bare[0])} has no task with demonstrations, so no episode to score its GLC on"
+            )
 
     def validate_folds(self, prefix: str) -> None:
         """`glc_folds`: at least two non-empty groups that split `tasks`, and no GLC checkpoint given."""

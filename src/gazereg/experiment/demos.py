@@ -3,6 +3,7 @@
     configs = demo_collections(cfg, out)     # {"train": CollectConfig, "heldout": ..., ["glc": ...]}
     collect_seeds(configs["train"])          # the setups the training demonstrations may come from
 
+Only the tasks with demonstrations are collected (`ExperimentConfig.demo_tasks`: not `tasks_without_demos`).
 The training demonstrations are on setups 0.. (`demos_per_task`, plus `demo_max_failures` replacements for the
 expert's failures), the held-out ones (attention-gaze alignment only, never trained on) and the GLC's own
 (single-GLC runs only) on setups counted from the evaluation's first setup seed plus an offset of their own.
@@ -10,7 +11,7 @@ expert's failures), the held-out ones (attention-gaze alignment only, never trai
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +38,7 @@ def demo_collections(cfg: ExperimentConfig, out: Path) -> dict[str, CollectConfi
     stores = demo_stores(out)
     common: dict[str, Any] = dict(
         env=cfg.env,
-        tasks=cfg.tasks,
+        tasks=cfg.demo_tasks,
         cameras=(cfg.camera,),
         image_size=cfg.image_size,
         max_steps=cfg.demo_max_steps,
@@ -78,10 +79,13 @@ def task_instructions(metas: Iterable[Mapping[str, Any]]) -> dict[str, str]:
     return dict(sorted(out.items()))
 
 
-def collection_result(name: str, report: CollectReport, store: EpisodeStore) -> dict[str, Any]:
+def collection_result(
+    name: str, report: CollectReport, store: EpisodeStore, without: Sequence[str] = ()
+) -> dict[str, Any]:
     """What the demos stage records of one collection: episodes and frames in its store (one read of each
     episode's metadata), seconds and, for the training demonstrations, the episodes wanted and kept per task
-    and each task's instruction (`task_instructions`). RuntimeError when a collection
+    (0 for the tasks `without` demonstrations, which it also lists) and each task's instruction
+    (`task_instructions`). RuntimeError when a collection
     other than the training one is incomplete, or when some task has no training demonstration at all
     (fewer than wanted is accepted there: the expert failed on some of the allowed setups)."""
     per_task = {task: r["episodes"] for task, r in report.tasks.items()}
@@ -101,4 +105,10 @@ def collection_result(name: str, report: CollectReport, store: EpisodeStore) -> 
             f"({report.tasks[empty[0]]['failed_seeds']}); raise --demo-max-failures"
         )
     wanted = next(iter(report.tasks.values()))["wanted"]
-    return {**out, "wanted": wanted, "per_task": per_task, "instructions": task_instructions(metas)}
+    return {
+        **out,
+        "wanted": wanted,
+        "per_task": {**per_task, **{task: 0 for task in without}},
+        "without": list(without),
+        "instructions": task_instructions(metas),
+    }

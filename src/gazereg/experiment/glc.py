@@ -65,10 +65,11 @@ def train_glc(cfg: ExperimentConfig, glc_store: Path) -> dict[str, Any]:
 
 def train_glc_folds(cfg: ExperimentConfig, store: Path, task_names: Mapping[str, str]) -> dict[str, Any]:
     """One GLC per fold on the training demonstrations `store` of the other folds' tasks, scored on episodes
-    of the fold's own tasks; `task_names`: each task's name in the store."""
+    of the fold's own tasks; `task_names`: each task's name in the store. Tasks without demonstrations
+    (`tasks_without_demos`) have no episode to train on, score or predict, so they are left out of both."""
     folds = []
     for k in range(len(cfg.glc_folds)):
-        trained_on, predicts = fold_tasks(cfg, k)
+        trained_on, predicts = (tuple(t for t in part if t in cfg.demo_tasks) for part in fold_tasks(cfg, k))
         trained = _run(
             cfg,
             store,

@@ -177,10 +177,12 @@ class Experiment:
     # ----- stages -------------------------------------------------------------------------------------------
     def stage_demos(self, _: dict[str, Any]) -> dict[str, Any]:
         """Every collection of `demos.demo_collections`; the training demonstrations may be fewer than wanted
-        per task (the expert failed on some allowed setup), the others not (`demos.collection_result`)."""
+        per task (the expert failed on some allowed setup), the others not (`demos.collection_result`); none runs
+        `tasks_without_demos`."""
         out = {}
         for name, ccfg in demo_collections(self.cfg, self.out).items():
-            out[name] = collection_result(name, collect(ccfg), EpisodeStore(ccfg.out))
+            without = self.cfg.tasks_without_demos if name == "train" else ()
+            out[name] = collection_result(name, collect(ccfg), EpisodeStore(ccfg.out), without)
         return out
 
     def task_names(self) -> dict[str, str]:

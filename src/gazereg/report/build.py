@@ -86,7 +86,7 @@ class StageOutputs:
     """the intermediate checkpoints' clean evaluation (their runs name their step); empty when none"""
     demos: dict[str, Any]
     """the training demonstrations: {"episodes", "frames"} and, where recorded, {"wanted": per task,
-    "per_task": {task: episodes}}"""
+    "per_task": {task: episodes}, "without": [tasks without demonstrations]}"""
     glc: dict[str, Any] | None
     """the GLC the experiment trained for the glc arm (checkpoint, steps, eval; or "folds", one such record per
     cross-fitted GLC with the tasks it "trained_on" and "predicts"), or None"""
@@ -191,7 +191,11 @@ def _header(spec: ReportSpec, outputs: StageOutputs) -> dict[str, Any]:
         "demos": {
             "episodes": outputs.demos.get("episodes"),
             "frames": outputs.demos.get("frames"),
-            **{k: outputs.demos[k] for k in ("wanted", "per_task", "instructions") if k in outputs.demos},
+            **{
+                k: outputs.demos[k]
+                for k in ("wanted", "per_task", "without", "instructions")
+                if k in outputs.demos
+            },
         },
         "train": {
             "steps": spec.train_steps,

@@ -59,15 +59,19 @@ def trained_on_text(machine: dict[str, Any]) -> str:
 
 def demos_text(demos: dict[str, Any]) -> str:
     """The training demonstrations in one phrase: episodes, frames and, where counted, the tasks that have
-    fewer than wanted (the expert failed on some of their training setups)."""
+    fewer than wanted (the expert failed on some of their training setups) and those without any (the preset's
+    `tasks_without_demos`: evaluated, never trained on)."""
     text = f"{demos['episodes']} episodes ({demos['frames']} frames) on training setups"
     if "per_task" not in demos:
         return text
-    short = {t: n for t, n in demos["per_task"].items() if n < demos["wanted"]}
+    without = demos.get("without", [])
+    none = f"; none of {', '.join(without)} (the expert cannot demonstrate it: evaluated, never trained on)"
+    tail = none if without else ""
+    short = {t: n for t, n in demos["per_task"].items() if n < demos["wanted"] and t not in without}
     if not short:
-        return f"{text}, {demos['wanted']} per task"
+        return f"{text}, {demos['wanted']} per task{tail}"
     fewer = ", ".join(f"{t} {n}" for t, n in short.items())
-    return f"{text}, {demos['wanted']} per task but fewer where the expert failed ({fewer})"
+    return f"{text}, {demos['wanted']} per task but fewer where the expert failed ({fewer}){tail}"
 
 
 def eval_text(ev: dict[str, Any]) -> str:
