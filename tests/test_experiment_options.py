@@ -158,8 +158,9 @@ def test_the_demos_record_counts_a_task_without_demonstrations_apart():
 
     tasks = {"s/0": {"episodes": 2, "wanted": 2}, "s/1": {"episodes": 1, "wanted": 2}}
     report = CollectReport(tasks=tasks, seconds=1.0, new_episodes=3, new_frames=30, complete=False)
-    got = collection_result("train", report, Store(), ("s/2",))
+    got = collection_result("train", report, Store(), {"s/2": "do 2"})
     assert got["per_task"] == {"s/0": 2, "s/1": 1, "s/2": 0} and got["without"] == ["s/2"]
+    assert got["instructions"] == {"s/0": "do 0", "s/1": "do 1", "s/2": "do 2"}
     assert demos_text(got) == (
         "3 episodes (30 frames) on training setups, 2 per task but fewer where the expert failed (s/1 1); "
         "none of s/2 (the expert cannot demonstrate it: evaluated, never trained on)"

@@ -7,6 +7,7 @@ import pytest
 
 from gazereg.envs.aloha.env import ACTION_LAYOUT, AlohaEnv
 from gazereg.envs.aloha.setup import EPISODE_LENGTH, TASKS, resolve_task
+from gazereg.envs.base import make_collector
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +37,9 @@ def test_names_and_sizes_follow_lerobots_aloha_env(cube_env):
     assert obs["images"]["top"].shape == (96, 128, 3) and obs["images"]["top"].dtype == np.uint8
     assert obs["state"].shape == (14,) and len(ACTION_LAYOUT) == 14
     assert obs["instruction"] == "transfer the cube to the other arm"
+    assert (
+        make_collector("aloha").instruction("AlohaTransferCube-v0") == obs["instruction"]
+    )  # known without a rollout
     assert info["success"] is False and info["reward"] == 0.0
 
 

@@ -26,6 +26,7 @@ def test_builtin_simulators_resolve_their_classes():
 
     assert env_class("metaworld") is MetaWorldEnv
     assert isinstance(make_collector("metaworld"), MetaWorldCollector)
+    assert make_collector("metaworld").instruction("reach-v3") == "Reach the goal with the gripper."
     # LIBERO's classes import without LIBERO installed; only building an environment needs it.
     assert make_collector("libero").default_cameras == ("agentview_rgb", "eye_in_hand_rgb")
 

@@ -70,6 +70,7 @@ def demos(tmp_path_factory):
 @pytest.mark.libero
 def test_collect_writes_libero_episodes(demos):
     from gazereg.data.store import EpisodeStore
+    from gazereg.envs.libero.collector import LiberoCollector
 
     cfg, report = demos
     assert report.complete and report.tasks["libero_spatial/0"]["episodes"] == 2
@@ -78,7 +79,9 @@ def test_collect_writes_libero_episodes(demos):
         ep = store.read(i)
         T = ep.length
         assert ep.task == "pick_up_the_black_bowl_between_the_plate_and_the_ramekin_and_place_it_on_the_plate"
-        assert ep.instruction == ep.task.replace("_", " ")
+        assert (
+            ep.instruction == ep.task.replace("_", " ") == LiberoCollector().instruction("libero_spatial/0")
+        )
         assert set(ep.frames) == set(CAMERAS)
         assert all(f.shape == (T, 48, 48, 3) for f in ep.frames.values())
         assert ep.state.shape == (T, 8) and ep.action.shape == (T, 7)

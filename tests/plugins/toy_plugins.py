@@ -33,7 +33,7 @@ class ToyEnv:
     ):
         self.task, self.cameras, self.max_steps = task, cameras, max_steps
         self.image_size = (image_size, image_size)
-        self.instruction = f"move the dot {task.split('-')[1]}"
+        self.instruction = ToyCollector().instruction(task)
         self.x = 0.5
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -73,6 +73,9 @@ class ToyCollector:
 
     def episode_task(self, task: str) -> str:
         return task
+
+    def instruction(self, task: str) -> str:
+        return f"move the dot {task.split('-')[1]}"
 
     def make_env(self, task: str, cfg: Any) -> ToyEnv:
         return ToyEnv(task, tuple(cfg.cameras), cfg.image_size, cfg.max_steps)

@@ -79,6 +79,10 @@ class Collector(Protocol):
         """The `task` an episode of `task` is stored under."""
         ...
 
+    def instruction(self, task: str) -> str:
+        """The instruction an episode of `task` stores (known without a rollout)."""
+        ...
+
     def make_env(self, task: str, cfg: Any) -> Env:
         """The environment of `task` with the render settings of `cfg` (a resolved CollectConfig)."""
         ...

@@ -11,7 +11,7 @@ expert's failures), the held-out ones (attention-gaze alignment only, never trai
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -80,12 +80,12 @@ def task_instructions(metas: Iterable[Mapping[str, Any]]) -> dict[str, str]:
 
 
 def collection_result(
-    name: str, report: CollectReport, store: EpisodeStore, without: Sequence[str] = ()
+    name: str, report: CollectReport, store: EpisodeStore, without: Mapping[str, str] | None = None
 ) -> dict[str, Any]:
     """What the demos stage records of one collection: episodes and frames in its store (one read of each
     episode's metadata), seconds and, for the training demonstrations, the episodes wanted and kept per task
-    (0 for the tasks `without` demonstrations, which it also lists) and each task's instruction
-    (`task_instructions`). RuntimeError when a collection
+    (0 for the tasks `without` demonstrations, {task: instruction}, which it also lists) and each task's
+    instruction (`task_instructions`, and those of the tasks without). RuntimeError when a collection
     other than the training one is incomplete, or when some task has no training demonstration at all
     (fewer than wanted is accepted there: the expert failed on some of the allowed setups)."""
     per_task = {task: r["episodes"] for task, r in report.tasks.items()}
@@ -105,10 +105,11 @@ def collection_result(
             f"({report.tasks[empty[0]]['failed_seeds']}); raise --demo-max-failures"
         )
     wanted = next(iter(report.tasks.values()))["wanted"]
+    without = without or {}
     return {
         **out,
         "wanted": wanted,
         "per_task": {**per_task, **{task: 0 for task in without}},
         "without": list(without),
-        "instructions": task_instructions(metas),
+        "instructions": dict(sorted({**task_instructions(metas), **without}.items())),
     }

@@ -179,9 +179,9 @@ class Experiment:
         """Every collection of `demos.demo_collections`; the training demonstrations may be fewer than wanted
         per task (the expert failed on some allowed setup), the others not (`demos.collection_result`); none runs
         `tasks_without_demos`."""
-        out = {}
+        out, collector = {}, make_collector(self.cfg.env)
         for name, ccfg in demo_collections(self.cfg, self.out).items():
-            without = self.cfg.tasks_without_demos if name == "train" else ()
+            without = {t: collector.instruction(t) for t in self.cfg.tasks_without_demos if name == "train"}
             out[name] = collection_result(name, collect(ccfg), EpisodeStore(ccfg.out), without)
         return out
 

@@ -103,6 +103,9 @@ class AlohaCollector:
     def episode_task(self, task: str) -> str:
         return resolve_task(task).name
 
+    def instruction(self, task: str) -> str:
+        return resolve_task(task).instruction
+
     def make_env(self, task: str, cfg: Any) -> AlohaEnv:
         return AlohaEnv(
             task,

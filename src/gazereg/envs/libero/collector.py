@@ -145,6 +145,10 @@ class LiberoCollector:
         suite, index = resolve_task(task)
         return str(suite_benchmark(suite).get_task_names()[index])
 
+    def instruction(self, task: str) -> str:
+        suite, index = resolve_task(task)
+        return str(suite_benchmark(suite).get_task(index).language)  # as LiberoEnv's episodes store it
+
     def make_env(self, task: str, cfg: Any) -> LiberoEnv:
         return LiberoEnv(
             task,

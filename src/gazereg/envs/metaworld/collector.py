@@ -22,6 +22,7 @@ from gazereg.envs.metaworld.env import (
     setup_of,
 )
 from gazereg.envs.metaworld.experts import Expert
+from gazereg.envs.metaworld.instructions import instruction_for
 from gazereg.envs.perturbations import parse_perturbation
 from gazereg.envs.recording import noise_seed, record_rollout, summary_of, versions
 
@@ -79,6 +80,9 @@ class MetaWorldCollector:
 
     def episode_task(self, task: str) -> str:
         return task
+
+    def instruction(self, task: str) -> str:
+        return instruction_for(task)
 
     def make_env(self, task: str, cfg: Any) -> MetaWorldEnv:
         return MetaWorldEnv(
