@@ -146,7 +146,10 @@ class LiberoCollector:
         return str(suite_benchmark(suite).get_task_names()[index])
 
     def instruction(self, task: str) -> str:
-        suite, index = resolve_task(task)
+        (one,) = self.tasks(
+            [task]
+        )  # imports LIBERO without its prompts, refuses what the experts do not cover
+        suite, index = resolve_task(one)
         return str(suite_benchmark(suite).get_task(index).language)  # as LiberoEnv's episodes store it
 
     def make_env(self, task: str, cfg: Any) -> LiberoEnv:
