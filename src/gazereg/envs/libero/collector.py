@@ -146,9 +146,8 @@ class LiberoCollector:
         return str(suite_benchmark(suite).get_task_names()[index])
 
     def instruction(self, task: str) -> str:
-        (one,) = self.tasks(
-            [task]
-        )  # imports LIBERO without its prompts, refuses what the experts do not cover
+        # tasks() imports LIBERO without its prompts and refuses what the experts do not cover
+        (one,) = self.tasks([task])
         suite, index = resolve_task(one)
         return str(suite_benchmark(suite).get_task(index).language)  # as LiberoEnv's episodes store it
 
