@@ -31,8 +31,9 @@ def plot_success(table: dict[str, dict[str, dict[str, Any]]], path: Path) -> Pat
     for i, arm in enumerate(arms):
         x = np.arange(len(conds)) + (i - (len(arms) - 1) / 2) * width
         rates = [table[arm][c]["rate"] for c in conds]
-        lo = [table[arm][c]["rate"] - table[arm][c]["ci95"][0] for c in conds]
-        hi = [table[arm][c]["ci95"][1] - table[arm][c]["rate"] for c in conds]
+        # clipped at 0: a Wilson bound can sit a rounding error on the wrong side of a rate of 0 or 1
+        lo = [max(0.0, table[arm][c]["rate"] - table[arm][c]["ci95"][0]) for c in conds]
+        hi = [max(0.0, table[arm][c]["ci95"][1] - table[arm][c]["rate"]) for c in conds]
         ax.bar(x, rates, width, yerr=[lo, hi], capsize=3, label=arm)
     ax.set_xticks(np.arange(len(conds)), conds, rotation=15)
     ax.set_ylim(0, 1)
