@@ -26,6 +26,20 @@ def test_wilson_known_values():
         wilson(3, 2)
 
 
+@pytest.mark.parametrize("n", [25, 50, 150, 250, 750])
+def test_wilson_holds_its_rate_at_the_ends(n):
+    # at these n the formula's lower bound at 0 successes (or upper at n) misses the rate by a rounding error
+    assert wilson(0, n)[0] == 0.0 and wilson(n, n)[1] == 1.0
+    lo, hi = wilson(0, n)
+    assert 0.0 < hi < 1.0 and 0.0 < wilson(n, n)[0] < 1.0
+    assert lo <= 0 / n <= hi
+
+
+def test_wilson_refuses_bad_counts():
+    with pytest.raises(ValueError):
+        wilson(3, 2)
+
+
 def test_exact_tests():
     assert binom_two_sided(5, 10) == pytest.approx(1.0)
     assert binom_two_sided(0, 10) == pytest.approx(2 / 1024)

@@ -17,7 +17,9 @@ import numpy as np
 
 
 def wilson(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
-    """Wilson score interval for a binomial proportion (95% by default); (0, 1) when n == 0."""
+    """Wilson score interval for a binomial proportion (95% by default); (0, 1) when n == 0. Its bounds hold the
+    rate: exactly 0 below when there is no success and exactly 1 above when every trial is one (the formula
+    leaves a rounding error there, which would put the rate outside its own interval)."""
     if n < 0 or not 0 <= successes <= n:
         raise ValueError(f"need 0 <= successes <= n, got {successes}/{n}")
     if n == 0:
@@ -26,7 +28,9 @@ def wilson(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
     den = 1 + z * z / n
     centre = (p + z * z / (2 * n)) / den
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    return max(0.0, centre - half), min(1.0, centre + half)
+    lo = 0.0 if successes == 0 else max(0.0, centre - half)
+    hi = 1.0 if successes == n else min(1.0, centre + half)
+    return lo, hi
 
 
 def binom_two_sided(k: int, n: int, p: float = 0.5) -> float:
