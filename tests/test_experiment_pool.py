@@ -3,6 +3,7 @@ run with every seed and arm; the same from the folders' archives (`gazereg archi
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -135,6 +136,29 @@ def _pooled_archives_report_what_the_folders_do(tmp_path, folders, pooled, capsy
         assert a[key] == b[key], key
     assert (a["date"], a["wall_time_s"]) == (b["date"], b["wall_time_s"])
     assert (out / b["figures"]["convergence"]).stat().st_size > 1000  # drawn again from the kept records
+    _demos_from_another_machine(kept, args, capsys)
+
+
+def _demos_from_another_machine(kept, args, capsys):
+    """A folder whose demonstrations were collected again on another CPU (an expert episode a step longer):
+    refused, then pooled with --demos-across-machines, which the report's command and its text then say."""
+    record = kept[1] / "stages" / "demos.json"
+    demos = json.loads(record.read_text())
+    demos["train"]["frames"] += 1
+    record.write_text(json.dumps(demos))
+    capsys.readouterr()
+    assert cli.main(args) == 2
+    assert "demonstrations differ" in capsys.readouterr().err
+    assert cli.main([*args, "--demos-across-machines"]) == 0
+    out = Path(args[-1])
+    report = json.loads((out / "report.json").read_text())
+    frames = report["demos"]["frames"]
+    assert report["demos"]["frames_per_folder"] == [frames, frames + 1, frames]
+    assert report["pooled_flags"][0] == "--demos-across-machines"
+    from gazereg.report import results_block
+
+    assert "--demos-across-machines" in results_block(report, "x.png").split("\n")[0]
+    assert f"on different machines: {frames}, {frames + 1}, {frames} frames)" in (out / "report.md").read_text()
 
 
 def test_folders_with_other_demonstrations_or_another_glc_are_not_one_experiment(tmp_path):
@@ -159,10 +183,21 @@ def test_folders_with_other_demonstrations_or_another_glc_are_not_one_experiment
     }  # durations may differ; a folder may lack GLC
     moved = {**glc, "checkpoint": "b/glc/final", "seconds": 0.0}  # each folder's GLC lives in the folder
     assert merge_outputs([a, b], [outputs(demos, glc, 1.0), outputs(demos, moved, 1.0)], tmp_path).glc == glc
-    with pytest.raises(UsageError, match="b's demonstrations differ"):
+    with pytest.raises(UsageError, match="b's demonstrations differ.*--demos-across-machines"):
         merge_outputs(
             [a, b], [outputs(demos, glc, 1.0), outputs({**demos, "frames": 7999}, glc, 1.0)], tmp_path
         )
+    # collected on another CPU: an expert episode a step shorter; pooled only when asked, and said
+    other_cpu = [outputs(demos, glc, 1.0), outputs({**demos, "frames": 7999}, glc, 1.0)]
+    across = merge_outputs([a, b], other_cpu, tmp_path, across_machines=True).demos
+    assert across["frames_per_folder"] == [8000, 7999] and across["frames"] == 8000
+    same = merge_outputs([a, b], [outputs(demos, glc, 1.0)] * 2, tmp_path, across_machines=True).demos
+    assert "frames_per_folder" not in same
+    for changed in ({"episodes": 99}, {"frames": 7999, "per_task": {"t": 1}}):  # more than frames: refused
+        with pytest.raises(UsageError, match="b's demonstrations differ"):
+            merge_outputs(
+                [a, b], [outputs(demos, glc, 1.0), outputs({**demos, **changed}, glc, 1.0)], tmp_path, True
+            )
     other = {**glc, "eval": {"glc_f1": 0.8}}
     with pytest.raises(UsageError, match="b's GLC differs"):
         merge_outputs([a, b], [outputs(demos, glc, 1.0), outputs(demos, other, 1.0)], tmp_path)

@@ -145,7 +145,8 @@ def test_the_pool_takes_the_largest_complete_block_of_archived_seeds_and_arm_gro
     assert sittings.pool_command(STUDY, STUDY10, tmp_path) == [
         "gazereg", "pool", "--preset", "ml45_study", "--train-seeds", "0", "2", "--arms", "baseline", "gaze",
         "--runs", "docs/records/study10-s0", "docs/records/study10-s2", "--out", "runs/study10",
-    ]  # fmt: skip
+        "--demos-across-machines",
+    ]  # fmt: skip  # sittings run on whichever machine a session has (test_experiment_pool.py)
     assert sittings.pool_command(STUDY, STUDY50, tmp_path)[5:10] == [
         "1",
         "--arms",

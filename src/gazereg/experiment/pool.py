@@ -16,6 +16,11 @@ aside, and the execution keys, which change how a run ran, not what it measured)
 `--arms` x `--train-seeds` must be in exactly one folder, and the folders' demonstrations and GLC records must
 be the same (each folder collects and trains them from the same seeds, or copies them with `--data-from`,
 `gazereg.experiment.reuse`). Its wall time is the folders' summed.
+
+Demonstrations collected again in each folder from the same seeds are the same on one machine, but an expert's
+episode can end a step earlier or later on another CPU (its floating point differs): `--demos-across-machines`
+pools folders whose demonstrations differ in their frame counts only (the same episodes per task), and the
+report names each folder's frames; anything else that differs is refused with or without it.
 """
 
 from __future__ import annotations
@@ -35,6 +40,8 @@ from gazereg.runtime.config import config_diff, parse_named, save_config, to_dic
 from gazereg.runtime.errors import UsageError
 from gazereg.runtime.io import atomic_write_json
 
+ACROSS_MACHINES = "--demos-across-machines"
+
 
 def source_outputs(cfg: ExperimentConfig, preset: str, source: Path) -> tuple[list[RunId], StageOutputs]:
     """(the runs, the stage outputs) of the finished experiment in `source`, refused (UsageError naming the
@@ -47,18 +54,26 @@ def source_outputs(cfg: ExperimentConfig, preset: str, source: Path) -> tuple[li
     return list(run.runs), run.stage_outputs()
 
 
-def merge_outputs(sources: Sequence[Path], outputs: Sequence[StageOutputs], out: Path) -> StageOutputs:
+def merge_outputs(
+    sources: Sequence[Path], outputs: Sequence[StageOutputs], out: Path, across_machines: bool = False
+) -> StageOutputs:
     """The outputs of the pooled runs as one experiment's: records and per-run values together, the same
-    demonstrations and GLC (refused otherwise), one attention figure in `out` stacking the folders' that show
-    arms not shown above them (each folder's figure shows its own arms), the latest date and the stage times
-    summed."""
+    demonstrations and GLC (refused otherwise; with `across_machines`, demonstrations that differ in frames
+    only, their record then naming each folder's, "frames_per_folder"), one attention figure in `out`
+    stacking the folders' that show arms not shown above them (each folder's figure shows its own arms), the
+    latest date and the stage times summed."""
     first = outputs[0]
     glcs = [(source, o.glc) for source, o in zip(sources, outputs) if o.glc is not None]
+    frames = [o.demos.get("frames") for o in outputs]
     for source, o in zip(sources[1:], outputs[1:]):
-        if _comparable(o.demos) != _comparable(first.demos):
+        if _comparable(o.demos) == _comparable(first.demos):
+            continue
+        if not (across_machines and _comparable(o.demos, "frames") == _comparable(first.demos, "frames")):
+            hint = "" if across_machines else " (--demos-across-machines: when only their frames differ)"
             raise UsageError(
-                f"--runs: {source}'s demonstrations differ from {sources[0]}'s: not one experiment"
+                f"--runs: {source}'s demonstrations differ from {sources[0]}'s: not one experiment{hint}"
             )
+    demos = first.demos if len(set(frames)) == 1 else {**first.demos, "frames_per_folder": frames}
     for source, glc in glcs[1:]:
         if _comparable(glc) != _comparable(glcs[0][1]):
             raise UsageError(f"--runs: {source}'s GLC differs from {glcs[0][0]}'s: not one experiment")
@@ -71,7 +86,7 @@ def merge_outputs(sources: Sequence[Path], outputs: Sequence[StageOutputs], out:
     return StageOutputs(
         episodes=[r for o in outputs for r in o.episodes],
         checkpoint_episodes=[r for o in outputs for r in o.checkpoint_episodes],
-        demos=first.demos,
+        demos=demos,
         glc=glcs[0][1] if glcs else None,
         final_metrics={k: v for o in outputs for k, v in o.final_metrics.items()},
         metrics_files={k: v for o in outputs for k, v in o.metrics_files.items()},
@@ -96,13 +111,14 @@ def attention_sources(sources: Sequence[Path], outputs: Sequence[StageOutputs]) 
     return figures
 
 
-def _comparable(record: object) -> object:
+def _comparable(record: object, *also: str) -> object:
     """A stage record without what differs between folders of one experiment: durations (`seconds`) and the
-    paths of the GLC checkpoints each folder trained or copied (`checkpoint`)."""
+    paths of the GLC checkpoints each folder trained or copied (`checkpoint`), and the keys `also`."""
+    drop = ("seconds", "checkpoint", *also)
     if isinstance(record, dict):
-        return {k: _comparable(v) for k, v in record.items() if k not in ("seconds", "checkpoint")}
+        return {k: _comparable(v, *also) for k, v in record.items() if k not in drop}
     if isinstance(record, list):
-        return [_comparable(v) for v in record]
+        return [_comparable(v, *also) for v in record]
     return record
 
 
@@ -117,9 +133,11 @@ def preset_flags(cfg: ExperimentConfig, preset: str) -> list[str]:
     return flags
 
 
-def pool(cfg: ExperimentConfig, preset: str, sources: Sequence[Path]) -> Path:
+def pool(
+    cfg: ExperimentConfig, preset: str, sources: Sequence[Path], across_machines: bool = False
+) -> Path:
     """Write the pooled report of `sources` into `cfg.out` (report.json, report.md, figures, the config and
-    pooled.json naming the folders); returns report.md's path."""
+    pooled.json naming the folders); returns report.md's path. `across_machines`: `merge_outputs`'s."""
     if not sources:
         raise UsageError("--runs needs the run folders to pool")
     runs, outputs = zip(*(source_outputs(cfg, preset, Path(s)) for s in sources))
@@ -137,10 +155,11 @@ def pool(cfg: ExperimentConfig, preset: str, sources: Sequence[Path]) -> Path:
     if any(out.resolve() == Path(s).resolve() for s in sources):
         raise UsageError(f"--out {out} is one of the pooled folders: choose another")
     out.mkdir(parents=True, exist_ok=True)
-    merged = merge_outputs([Path(s) for s in sources], outputs, out)
+    merged = merge_outputs([Path(s) for s in sources], outputs, out, across_machines)
     report = build_report(report_spec(cfg, preset), merged, out)
     report["pooled_from"] = [str(s) for s in sources]
-    report["pooled_flags"] = preset_flags(cfg, preset)
+    needed = "frames_per_folder" in merged.demos  # the flag in the command only where the pool needs it
+    report["pooled_flags"] = [*([ACROSS_MACHINES] if needed else []), *preset_flags(cfg, preset)]
     save_config(cfg, out / CONFIG_FILE)
     atomic_write_json(
         out / POOLED_RECORD, {"folders": report["pooled_from"], "runs": [list(map(str, g)) for g in runs]}
@@ -165,8 +184,10 @@ def take_runs(argv: Sequence[str]) -> tuple[list[Path], list[str]]:
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     sources, rest = take_runs(args)
+    across = ACROSS_MACHINES in rest
+    rest = [a for a in rest if a != ACROSS_MACHINES]
     preset, cfg = parse_named(PRESETS, rest, prog="gazereg pool", description=__doc__ or "", required=True)
-    path = pool(cfg, preset, sources)
+    path = pool(cfg, preset, sources, across)
     print(path.read_text())
     print(f"pooled {len(sources)} runs into {path}")
     return 0

@@ -46,6 +46,7 @@ from pathlib import Path
 from gazereg.experiment.config import ExperimentConfig
 from gazereg.experiment.config_finetune import GLC_ML45
 from gazereg.experiment.finished import stage_marker
+from gazereg.experiment.pool import ACROSS_MACHINES
 from gazereg.experiment.pool import main as pool_main
 from gazereg.experiment.tuning import archived_run, built_config, run_experiment
 from gazereg.runtime.errors import UsageError
@@ -244,7 +245,8 @@ def pool_command(schedule: Schedule, part: Part, root: Path, records: Path = REC
     """`gazereg pool` into runs/<part> of the part's archived sittings: the largest complete block of them,
     the training seeds and arm groups with every (seed, group) archived that hold the most runs (ties: more
     seeds, then the earlier seeds), so a sitting that opens a seed (its first group only) does not shrink the
-    pool's arms; None when nothing is archived."""
+    pool's arms, their demonstrations pooled across machines (`pool.ACROSS_MACHINES`); None when nothing is
+    archived."""
     done = {
         (s.seed, s.arms): s for s in schedule.sittings() if s.part == part and is_archived(s, root, records)
     }
@@ -263,7 +265,8 @@ def pool_command(schedule: Schedule, part: Part, root: Path, records: Path = REC
     runs = [(records / done[x, g].name).as_posix() for x in seeds for g in groups]
     arms = [arm for g in groups for arm in g]
     cmd = ["gazereg", "pool", "--preset", part.preset, "--train-seeds", *map(str, seeds), "--arms", *arms]
-    return [*cmd, "--runs", *runs, "--out", (RUNS / part.name).as_posix()]
+    # sittings run on whatever machine each session has: their demonstrations may differ in frames (pool.py)
+    return [*cmd, "--runs", *runs, "--out", (RUNS / part.name).as_posix(), ACROSS_MACHINES]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

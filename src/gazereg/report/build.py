@@ -193,7 +193,7 @@ def _header(spec: ReportSpec, outputs: StageOutputs) -> dict[str, Any]:
             "frames": outputs.demos.get("frames"),
             **{
                 k: outputs.demos[k]
-                for k in ("wanted", "per_task", "without", "instructions")
+                for k in ("wanted", "per_task", "without", "instructions", "frames_per_folder")
                 if k in outputs.demos
             },
         },

@@ -60,8 +60,15 @@ def trained_on_text(machine: dict[str, Any]) -> str:
 def demos_text(demos: dict[str, Any]) -> str:
     """The training demonstrations in one phrase: episodes, frames and, where counted, the tasks that have
     fewer than wanted (the expert failed on some of their training setups) and those without any (the preset's
-    `tasks_without_demos`: evaluated, never trained on)."""
+    `tasks_without_demos`: evaluated, never trained on), and, for a pool of folders whose demonstrations were
+    collected on different machines (`gazereg pool --demos-across-machines`), each folder's frames."""
     text = f"{demos['episodes']} episodes ({demos['frames']} frames) on training setups"
+    if "frames_per_folder" in demos:
+        each = ", ".join(map(str, demos["frames_per_folder"]))
+        text += (
+            f" (collected again in each pooled folder from the same setups and seeds, on different machines: "
+            f"{each} frames)"
+        )
     if "per_task" not in demos:
         return text
     without = demos.get("without", [])
