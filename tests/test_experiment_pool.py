@@ -158,7 +158,9 @@ def _demos_from_another_machine(kept, args, capsys):
     from gazereg.report import results_block
 
     assert "--demos-across-machines" in results_block(report, "x.png").split("\n")[0]
-    assert f"on different machines: {frames}, {frames + 1}, {frames} frames)" in (out / "report.md").read_text()
+    assert (
+        f"on different machines: {frames}, {frames + 1}, {frames} frames)" in (out / "report.md").read_text()
+    )
 
 
 def test_folders_with_other_demonstrations_or_another_glc_are_not_one_experiment(tmp_path):

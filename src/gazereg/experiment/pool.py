@@ -133,9 +133,7 @@ def preset_flags(cfg: ExperimentConfig, preset: str) -> list[str]:
     return flags
 
 
-def pool(
-    cfg: ExperimentConfig, preset: str, sources: Sequence[Path], across_machines: bool = False
-) -> Path:
+def pool(cfg: ExperimentConfig, preset: str, sources: Sequence[Path], across_machines: bool = False) -> Path:
     """Write the pooled report of `sources` into `cfg.out` (report.json, report.md, figures, the config and
     pooled.json naming the folders); returns report.md's path. `across_machines`: `merge_outputs`'s."""
     if not sources:
