@@ -21,7 +21,8 @@ sittings only if the core arms show something to explain. A sitting runs
     gazereg archive runs/NAME --out docs/records/NAME
 
 (`--data-from` the part's first sitting when that folder is here with its demonstrations: the same
-demonstrations copied, not collected again; without it they are collected again from the same seeds), and is
+demonstrations copied, not collected again; without it they are collected again from the same seeds, on
+whatever machine the session has, so the pools take `--demos-across-machines`), and is
 checked to be that command's run before it is archived. A sitting whose arms need something no sitting makes
 (the ML45 study's GLC, trained on the pretraining's demonstrations) builds it first (`Prerequisite`). The
 pool of a part takes the largest complete block archived so far (a pool needs each of its arms at each of its
