@@ -195,6 +195,11 @@ def test_folders_with_other_demonstrations_or_another_glc_are_not_one_experiment
     assert across["frames_per_folder"] == [8000, 7999] and across["frames"] == 8000
     same = merge_outputs([a, b], [outputs(demos, glc, 1.0)] * 2, tmp_path, across_machines=True).demos
     assert "frames_per_folder" not in same
+    # a record written before `without` existed is the same as one that lists no task without demonstrations
+    newer = [outputs(demos, glc, 1.0), outputs({**demos, "without": []}, glc, 1.0)]
+    assert "frames_per_folder" not in merge_outputs([a, b], newer, tmp_path).demos
+    with pytest.raises(UsageError, match="b's demonstrations differ"):
+        merge_outputs([a, b], [newer[0], outputs({**demos, "without": ["t"]}, glc, 1.0)], tmp_path, True)
     for changed in ({"episodes": 99}, {"frames": 7999, "per_task": {"t": 1}}):  # more than frames: refused
         with pytest.raises(UsageError, match="b's demonstrations differ"):
             merge_outputs(

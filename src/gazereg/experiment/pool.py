@@ -66,9 +66,9 @@ def merge_outputs(
     glcs = [(source, o.glc) for source, o in zip(sources, outputs) if o.glc is not None]
     frames = [o.demos.get("frames") for o in outputs]
     for source, o in zip(sources[1:], outputs[1:]):
-        if _comparable(o.demos) == _comparable(first.demos):
+        if _demos(o.demos) == _demos(first.demos):
             continue
-        if not (across_machines and _comparable(o.demos, "frames") == _comparable(first.demos, "frames")):
+        if not (across_machines and _demos(o.demos, "frames") == _demos(first.demos, "frames")):
             hint = "" if across_machines else " (--demos-across-machines: when only their frames differ)"
             raise UsageError(
                 f"--runs: {source}'s demonstrations differ from {sources[0]}'s: not one experiment{hint}"
@@ -109,6 +109,12 @@ def attention_sources(sources: Sequence[Path], outputs: Sequence[StageOutputs]) 
             figures.append(source / o.attention_figure)
             shown |= arms
     return figures
+
+
+def _demos(record: dict, *also: str) -> object:
+    """A demonstrations record as `_comparable` has it, an empty "without" (no task left undemonstrated) the
+    same as none (records written before the key existed)."""
+    return _comparable({k: v for k, v in record.items() if k != "without" or v}, *also)
 
 
 def _comparable(record: object, *also: str) -> object:
