@@ -49,6 +49,18 @@ def test_parse_named_returns_the_preset_it_chose_with_the_config():
         parse_named(_SIZES, ["--preset=three"], prog="t")
 
 
+def test_help_without_the_preset_it_needs_names_the_presets(capsys):
+    for argv in (["--help"], ["-h", "--width", "5"]):
+        with pytest.raises(SystemExit) as stop:
+            parse_named(_SIZES, argv, prog="t", description="what t does", required=True)
+        assert stop.value.code == 0
+        out = capsys.readouterr().out
+        assert "what t does" in out and "Presets: one, two." in out and "usage: t --preset NAME" in out
+    with pytest.raises(SystemExit) as stop:  # with the preset: tyro's help, its options and values
+        parse_named(_SIZES, ["--preset", "two", "--help"], prog="t", required=True)
+    assert stop.value.code == 0 and "--width" in capsys.readouterr().out
+
+
 def test_console_script_runs():
     r = subprocess.run(
         [sys.executable, "-m", "gazereg.cli", "--help"], capture_output=True, text=True, check=True

@@ -122,14 +122,21 @@ def parse_named(
 ) -> tuple[str, T]:
     """(the preset's name, the config): preset defaults, then dotted overrides from argv. Without `--preset`
     the preset is `default` (a registry of one preset is its own default; the order of several never chooses);
-    `required`, or several presets and no `default`, refuses (UsageError) an argv without `--preset`."""
+    `required`, or several presets and no `default`, refuses (UsageError) an argv without `--preset`, except
+    `--help`: the command's description and its presets, exit 0."""
     import tyro
 
     if not presets:
         raise ValueError("no presets defined")
     if default is None and len(presets) == 1:
         default = next(iter(presets))
-    name, rest = split_preset(argv, default=None if required else default)
+    chosen = default is not None and not required
+    asks_help = "-h" in argv or "--help" in argv
+    if asks_help and not chosen and not any(a == "--preset" or a.startswith("--preset=") for a in argv):
+        print(f"usage: {prog} --preset NAME [OPTIONS]\n\n{description}\nPresets: {', '.join(presets)}.")
+        print(f"`{prog} --preset NAME --help` lists the options and that preset's values.")
+        raise SystemExit(0)
+    name, rest = split_preset(argv, default=default if chosen else None)
     if name not in presets:
         raise UsageError(f"unknown preset {name!r} for {prog}; choose one of {sorted(presets)}")
     base, rest = choose(presets[name](), rest)
