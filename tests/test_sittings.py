@@ -115,7 +115,7 @@ def test_aloha_sits_baseline_and_gaze_then_the_gaze_controls_then_the_flat_targe
     ]  # fmt: skip
 
 
-def test_a_sittings_command_is_its_arms_at_its_seed_with_the_first_sittings_data_when_here(tmp_path):
+def test_a_sittings_command_is_its_arms_at_its_seed_with_another_sittings_data_when_here(tmp_path):
     named = {s.name: s for s in STUDY.sittings()}
     s0, s0_glc, s1 = named["study50-s0"], named["study50-s0-glc"], named["study50-s1"]
     assert s1.command() == [
@@ -132,6 +132,12 @@ def test_a_sittings_command_is_its_arms_at_its_seed_with_the_first_sittings_data
     first = ["--data-from", "runs/study50-s0"]
     assert [sittings.data_from(STUDY, s, tmp_path) for s in (s0, s0_glc, s1)] == [[], first, first]
     assert sittings.data_from(STUDY, named["study10-s1"], tmp_path) == []  # another preset's demonstrations
+    # without the part's first sitting here, another of its sittings that is (not itself, not another part's)
+    (tmp_path / "runs" / "study50-s0" / "stages" / "demos.json").unlink()
+    _touch(tmp_path / "runs" / "study50-s1" / "stages" / "demos.json")
+    later = ["--data-from", "runs/study50-s1"]
+    assert [sittings.data_from(STUDY, s, tmp_path) for s in (s0, s0_glc, s1)] == [later, later, []]
+    assert sittings.data_from(STUDY, named["study10-s1"], tmp_path) == []
 
 
 def _archive(root, *names):

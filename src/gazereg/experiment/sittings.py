@@ -17,13 +17,13 @@ anywhere has its parts at (nearly) the same seeds; a part's follow-up groups (`P
 first `core`) come after every seed's core groups, seed by seed again: controls that are worth their
 sittings only if the core arms show something to explain. A sitting runs
 
-    gazereg experiment --preset P --train-seeds S --arms A B --out runs/NAME [--data-from runs/<part's first>]
+    gazereg experiment --preset P --train-seeds S --arms A B --out runs/NAME [--data-from runs/<a sitting>]
     gazereg archive runs/NAME --out docs/records/NAME
 
-(`--data-from` the part's first sitting when that folder is here with its demonstrations: the same
-demonstrations copied, not collected again; without it they are collected again from the same seeds, on
-whatever machine the session has, so the pools take `--demos-across-machines`), and is
-checked to be that command's run before it is archived. A sitting whose arms need something no sitting makes
+(`--data-from` the part's first sitting when that folder is here with its demonstrations, else another of
+its sittings that is: the same demonstrations copied, not collected again; without it they are collected
+again from the same seeds, on whatever machine the session has, so the pools take `--demos-across-machines`),
+and is checked to be that command's run before it is archived. A sitting whose arms need something no sitting makes
 (the ML45 study's GLC, trained on the pretraining's demonstrations) builds it first (`Prerequisite`). The
 pool of a part takes the largest complete block archived so far (a pool needs each of its arms at each of its
 seeds: the seeds and arm groups that give the most runs, `pool_command`);
@@ -220,10 +220,16 @@ def is_archived(sitting: Sitting, root: Path, records: Path = RECORDS) -> bool:
 
 
 def data_from(schedule: Schedule, sitting: Sitting, root: Path) -> list[str]:
-    """`--data-from` the part's first sitting's folder when it is here with its demonstrations."""
-    first = schedule.first(sitting.part)
-    if sitting != first and stage_marker(root / first.folder, "demos").exists():
-        return ["--data-from", first.folder.as_posix()]
+    """`--data-from` the folder of another sitting of the same part that is here with its demonstrations (every
+    sitting of a part collects the same setups): the part's first sitting's when it is here, else the first
+    such in the schedule's order; none (collect them again) when no other one is here."""
+    for other in (schedule.first(sitting.part), *schedule.sittings()):
+        if (
+            other.part == sitting.part
+            and other != sitting
+            and stage_marker(root / other.folder, "demos").exists()
+        ):
+            return ["--data-from", other.folder.as_posix()]
     return []
 
 
