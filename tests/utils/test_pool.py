@@ -166,3 +166,43 @@ def test_a_spawned_worker_ends_when_its_parent_is_killed(tmp_path):
         parent.kill()
         if marker.exists() and marker.read_text() and _alive(int(marker.read_text())):
             os.kill(int(marker.read_text()), signal.SIGKILL)  # the failure's orphan
+
+
+LEAVING_ON_AN_ERROR = """
+import os, sys, time
+from pathlib import Path
+from gazereg.runtime.pool import WorkerPool
+
+class SleepingWorker:
+    def run(self, job):
+        Path(job).write_text(str(os.getpid()))
+        time.sleep(300)
+        Path(job + ".done").write_text("")
+
+    def close(self):
+        pass
+
+if __name__ == "__main__":
+    with WorkerPool(SleepingWorker, workers=2) as pool:
+        pool.submit(sys.argv[1], tag=0)
+        while not Path(sys.argv[1]).exists() or not Path(sys.argv[1]).read_text():
+            time.sleep(0.05)
+        raise SystemExit(3)  # as Ctrl-C or SIGTERM would, while the job runs
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states from /proc")
+def test_leaving_the_pool_on_an_error_ends_the_job_in_flight(tmp_path):
+    """Ctrl-C or SIGTERM in the train stage must stop the run, not wait for a training job of hours to end."""
+    (tmp_path / "parent.py").write_text(LEAVING_ON_AN_ERROR)
+    marker = tmp_path / "worker.pid"
+    parent = subprocess.Popen([sys.executable, str(tmp_path / "parent.py"), str(marker)], cwd=tmp_path)
+    try:
+        assert parent.wait(timeout=240) == 3  # the job alone would sleep 300 s
+        worker = int(marker.read_text())
+        assert not _alive(worker), f"worker {worker} ran on after the pool was left"
+        assert not (tmp_path / "worker.pid.done").exists()
+    finally:
+        parent.kill()
+        if marker.exists() and marker.read_text() and _alive(int(marker.read_text())):
+            os.kill(int(marker.read_text()), signal.SIGKILL)

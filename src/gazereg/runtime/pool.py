@@ -17,7 +17,9 @@ callable: a class or a `functools.partial` of one), and runs every job it gets w
 what a worker loads (policies, simulators) is reused across jobs. `workers` <= 1 builds the worker in this
 process, when the pool opens, and runs the jobs there in the order they were submitted. Results come back
 to the parent as jobs finish (submission order in-process); an exception raised by a job is raised from
-`results()`, and leaving the pool on an error cancels the jobs not yet started. A spawned worker ends
+`results()`, and leaving the pool on an error (a job's, Ctrl-C, SIGTERM) cancels the jobs not yet started
+and ends the spawned workers, the jobs in flight with them (their writes are atomic: a resumed run redoes
+them), rather than waiting for those to finish. A spawned worker ends
 itself when its parent dies (`exit_with_parent`), so a killed run leaves no worker behind. Progress: the
 parent reports jobs done as results come back; a progress bar made inside a worker process
 (`gazereg.runtime.progress`, e.g. a training run of the experiment's train stage) writes whole lines every
@@ -148,7 +150,15 @@ class WorkerPool(Generic[JobT, ResultT]):
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         if self._executor is not None:
-            self._executor.shutdown(wait=True, cancel_futures=exc_type is not None)
+            if exc_type is None:
+                self._executor.shutdown(wait=True)
+            else:  # an error, Ctrl-C or SIGTERM: end the jobs in flight too (a training job runs for hours)
+                processes = list((getattr(self._executor, "_processes", None) or {}).values())
+                self._executor.shutdown(wait=False, cancel_futures=True)
+                for process in processes:
+                    process.terminate()
+                for process in processes:
+                    process.join(timeout=30)
             self._executor = None
         if self._local is not None:
             self._local.close()
