@@ -112,25 +112,31 @@ def test_fingerprints(tmp_path):
     assert fingerprint_files(tmp_path) != first
 
 
-PARENT = """
-import functools, os, sys, time
+SLEEPING_WORKER = """
+import os, sys, time
 from pathlib import Path
 from gazereg.runtime.pool import WorkerPool
 
 class SleepingWorker:
-    def run(self, job):
+    def run(self, job):  # its pid into the file `job`, 300 s asleep, then `job`.done
         Path(job).write_text(str(os.getpid()))
         time.sleep(300)
+        Path(job + ".done").write_text("")
 
     def close(self):
         pass
+"""
 
+PARENT = (
+    SLEEPING_WORKER
+    + """
 if __name__ == "__main__":
     with WorkerPool(SleepingWorker, workers=2) as pool:
         pool.submit(sys.argv[1], tag=0)
         for _ in pool.results():
             pass
 """
+)
 
 
 def _alive(pid: int) -> bool:
@@ -168,20 +174,9 @@ def test_a_spawned_worker_ends_when_its_parent_is_killed(tmp_path):
             os.kill(int(marker.read_text()), signal.SIGKILL)  # the failure's orphan
 
 
-LEAVING_ON_AN_ERROR = """
-import os, sys, time
-from pathlib import Path
-from gazereg.runtime.pool import WorkerPool
-
-class SleepingWorker:
-    def run(self, job):
-        Path(job).write_text(str(os.getpid()))
-        time.sleep(300)
-        Path(job + ".done").write_text("")
-
-    def close(self):
-        pass
-
+LEAVING_ON_AN_ERROR = (
+    SLEEPING_WORKER
+    + """
 if __name__ == "__main__":
     with WorkerPool(SleepingWorker, workers=2) as pool:
         pool.submit(sys.argv[1], tag=0)
@@ -189,6 +184,7 @@ if __name__ == "__main__":
             time.sleep(0.05)
         raise SystemExit(3)  # as Ctrl-C or SIGTERM would, while the job runs
 """
+)
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states from /proc")

@@ -36,9 +36,9 @@ from gazereg.runtime.tyro_errors import tyro_errors_as_usage
 T = TypeVar("T")
 
 
-def split_preset(argv: Sequence[str], default: str | None) -> tuple[str, list[str]]:
+def split_preset(argv: Sequence[str], default: str | None) -> tuple[str | None, list[str]]:
     """Remove `--preset NAME` / `--preset=NAME` from argv; returns (name, remaining args). Without the flag
-    the name is `default`; a command with no default (`None`) refuses (UsageError) an argv without one."""
+    the name is `default` (None for a command that has none)."""
     rest: list[str] = []
     name = default
     it = iter(argv)
@@ -51,8 +51,6 @@ def split_preset(argv: Sequence[str], default: str | None) -> tuple[str, list[st
             name = arg.split("=", 1)[1]
         else:
             rest.append(arg)
-    if name is None:
-        raise UsageError("--preset NAME is required")
     return name, rest
 
 
@@ -130,13 +128,13 @@ def parse_named(
         raise ValueError("no presets defined")
     if default is None and len(presets) == 1:
         default = next(iter(presets))
-    chosen = default is not None and not required
-    asks_help = "-h" in argv or "--help" in argv
-    if asks_help and not chosen and not any(a == "--preset" or a.startswith("--preset=") for a in argv):
-        print(f"usage: {prog} --preset NAME [OPTIONS]\n\n{description}\nPresets: {', '.join(presets)}.")
-        print(f"`{prog} --preset NAME --help` lists the options and that preset's values.")
-        raise SystemExit(0)
-    name, rest = split_preset(argv, default=default if chosen else None)
+    name, rest = split_preset(argv, default=None if required else default)
+    if name is None:
+        if "-h" in rest or "--help" in rest:  # help before the preset it needs: the command, then its presets
+            print(f"usage: {prog} --preset NAME [OPTIONS]\n\n{description}\nPresets: {', '.join(presets)}.")
+            print(f"`{prog} --preset NAME --help` lists the options and that preset's values.")
+            raise SystemExit(0)
+        raise UsageError("--preset NAME is required")
     if name not in presets:
         raise UsageError(f"unknown preset {name!r} for {prog}; choose one of {sorted(presets)}")
     base, rest = choose(presets[name](), rest)
